@@ -1,0 +1,183 @@
+"""Triangle meshes in PLY: validated reading and attribute-preserving writing.
+
+The central mesh object is :class:`trimesh.Trimesh`. Per-vertex data that
+trimesh does not model (radiance, albedo, labels, flags) travels in
+``mesh.vertex_attributes`` and is written as extra PLY vertex properties.
+
+PLY files are parsed with :mod:`plyfile` rather than trimesh's loader because
+trimesh silently triangulates quads and drops unknown properties; a scan loader
+must instead *report* non-triangle faces and keep every property.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from reroom.errors import ScanError
+from reroom.io.atomic import atomic_path
+
+_RGB = ("r", "g", "b")
+
+
+def read_ply(path: str | Path) -> trimesh.Trimesh:
+    """Read a triangle mesh from a PLY file, validating it.
+
+    Extra vertex properties (anything but x, y, z, nx, ny, nz) are kept in
+    ``mesh.vertex_attributes``; properties named ``<name>_r``, ``<name>_g``,
+    ``<name>_b`` are gathered into one ``(N, 3)`` array ``<name>``, and the
+    standard ``red, green, blue`` into ``color`` (uint8).
+
+    Raises
+    ------
+    ScanError
+        If the file is missing, is not a PLY file, has no vertices or no faces,
+        has non-triangle faces, face indices out of range, or non-finite
+        vertex coordinates.
+    """
+    from plyfile import PlyData, PlyParseError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ScanError(path, "mesh file is missing")
+    try:
+        ply = PlyData.read(str(path))
+    except (PlyParseError, ValueError, OSError, EOFError, IndexError, KeyError) as exc:
+        raise ScanError(path, f"is not a readable PLY mesh ({exc})") from exc
+    names = [el.name for el in ply.elements]
+    if "vertex" not in names:
+        raise ScanError(path, "has no 'vertex' element")
+    vdata = ply["vertex"].data
+    if len(vdata) == 0:
+        raise ScanError(path, "mesh has no vertices")
+    for coord in ("x", "y", "z"):
+        if coord not in vdata.dtype.names:
+            raise ScanError(path, f"vertex element lacks the '{coord}' property")
+    vertices = np.stack([vdata["x"], vdata["y"], vdata["z"]], axis=1).astype(np.float64)
+    if not np.all(np.isfinite(vertices)):
+        bad = int(np.count_nonzero(~np.isfinite(vertices).all(axis=1)))
+        raise ScanError(path, f"{bad} vertices have non-finite coordinates")
+    if "face" not in names or len(ply["face"].data) == 0:
+        raise ScanError(path, "mesh has no faces (a point cloud is not a mesh)")
+    fdata = ply["face"].data
+    index_prop = next(
+        (p for p in ("vertex_indices", "vertex_index") if p in fdata.dtype.names), None
+    )
+    if index_prop is None:
+        raise ScanError(path, "face element lacks 'vertex_indices'")
+    lists = fdata[index_prop]
+    sizes = np.fromiter((len(f) for f in lists), dtype=np.int64, count=len(lists))
+    if np.any(sizes != 3):
+        bad_sizes = sorted(set(sizes[sizes != 3].tolist()))
+        raise ScanError(
+            path,
+            f"{int(np.count_nonzero(sizes != 3))} faces are not triangles "
+            f"(faces with {bad_sizes} vertices); triangulate the mesh first",
+        )
+    faces = np.vstack(lists).astype(np.int64) if len(lists) else np.zeros((0, 3), np.int64)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise ScanError(path, f"face indices out of range [0, {len(vertices)})")
+
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
+    attrs = _gather_attributes(vdata)
+    if "color" in attrs:
+        rgba = np.concatenate(
+            [attrs["color"], np.full((len(vertices), 1), 255, np.uint8)], axis=1
+        )
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba)
+    mesh.vertex_attributes.update(attrs)
+    return mesh
+
+
+def _gather_attributes(vdata: np.ndarray) -> dict[str, np.ndarray]:
+    skip = {"x", "y", "z", "nx", "ny", "nz"}
+    props = [p for p in vdata.dtype.names if p not in skip]
+    attrs: dict[str, np.ndarray] = {}
+    used: set[str] = set()
+    if all(c in props for c in ("red", "green", "blue")):
+        attrs["color"] = np.stack([vdata[c] for c in ("red", "green", "blue")], 1).astype(
+            np.uint8
+        )
+        used |= {"red", "green", "blue", "alpha"}
+    for p in props:
+        if p in used:
+            continue
+        if p.endswith("_r"):
+            base = p[:-2]
+            trio = [f"{base}_{c}" for c in _RGB]
+            if all(t in props for t in trio):
+                attrs[base] = np.stack([np.asarray(vdata[t]) for t in trio], axis=1)
+                used.update(trio)
+                continue
+        if p.endswith(("_g", "_b")) and p[:-2] + "_r" in props:
+            continue
+        attrs[p] = np.asarray(vdata[p])
+        used.add(p)
+    return attrs
+
+
+def write_ply(
+    path: str | Path,
+    mesh: trimesh.Trimesh,
+    attributes: dict[str, np.ndarray] | None = None,
+    *,
+    binary: bool = True,
+) -> Path:
+    """Write ``mesh`` as PLY with per-vertex ``attributes``, atomically.
+
+    ``attributes`` defaults to ``mesh.vertex_attributes``. An ``(N, 3)`` float
+    attribute ``name`` is written as ``name_r, name_g, name_b``; ``color``
+    (uint8 ``(N, 3)``) as the standard ``red, green, blue``. Float attributes
+    are written as float32, integer ones keep their type.
+    """
+    from plyfile import PlyData, PlyElement
+
+    attributes = dict(mesh.vertex_attributes if attributes is None else attributes)
+    v = np.asarray(mesh.vertices)
+    n = len(v)
+    fields: list[tuple[str, np.ndarray]] = [
+        ("x", v[:, 0].astype(np.float32)),
+        ("y", v[:, 1].astype(np.float32)),
+        ("z", v[:, 2].astype(np.float32)),
+    ]
+    for name, value in attributes.items():
+        arr = np.asarray(value)
+        if arr.shape[0] != n:
+            raise ValueError(f"attribute {name!r} has {arr.shape[0]} rows for {n} vertices")
+        if name == "color":
+            for i, c in enumerate(("red", "green", "blue")):
+                fields.append((c, arr[:, i].astype(np.uint8)))
+        elif arr.ndim == 2 and arr.shape[1] == 3:
+            for i, c in enumerate(_RGB):
+                fields.append((f"{name}_{c}", _ply_cast(arr[:, i])))
+        elif arr.ndim == 1:
+            fields.append((name, _ply_cast(arr)))
+        else:
+            raise ValueError(f"attribute {name!r} has unsupported shape {arr.shape}")
+    vert = np.empty(n, dtype=[(k, a.dtype) for k, a in fields])
+    for k, a in fields:
+        vert[k] = a
+    faces = np.asarray(mesh.faces, dtype=np.int32)
+    face = np.empty(len(faces), dtype=[("vertex_indices", np.int32, (3,))])
+    face["vertex_indices"] = faces
+    ply = PlyData(
+        [PlyElement.describe(vert, "vertex"), PlyElement.describe(face, "face")],
+        text=not binary,
+    )
+    with atomic_path(path) as tmp:
+        ply.write(str(tmp))
+    return Path(path)
+
+
+def _ply_cast(arr: np.ndarray) -> np.ndarray:
+    if arr.dtype == np.bool_:
+        return arr.astype(np.uint8)
+    if np.issubdtype(arr.dtype, np.floating):
+        return arr.astype(np.float32)
+    if arr.dtype == np.int64:
+        return arr.astype(np.int32)
+    if arr.dtype == np.uint64:
+        return arr.astype(np.uint32)
+    return arr
