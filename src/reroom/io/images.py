@@ -80,7 +80,9 @@ def read_depth_mm(path: str | Path) -> np.ndarray:
     except (UnidentifiedImageError, OSError, SyntaxError) as exc:
         raise ScanError(path, f"is corrupt or not an image ({exc})") from exc
     if arr.ndim != 2 or arr.dtype not in (np.uint16, np.int32, np.uint32, np.int16):
-        raise ScanError(path, f"is not a single-channel 16-bit depth image ({arr.dtype}, {arr.shape})")
+        raise ScanError(
+            path, f"is not a single-channel 16-bit depth image ({arr.dtype}, {arr.shape})"
+        )
     return arr.astype(np.float32) / 1000.0
 
 

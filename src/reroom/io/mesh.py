@@ -83,9 +83,7 @@ def read_ply(path: str | Path) -> trimesh.Trimesh:
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
     attrs = _gather_attributes(vdata)
     if "color" in attrs:
-        rgba = np.concatenate(
-            [attrs["color"], np.full((len(vertices), 1), 255, np.uint8)], axis=1
-        )
+        rgba = np.concatenate([attrs["color"], np.full((len(vertices), 1), 255, np.uint8)], axis=1)
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba)
     mesh.vertex_attributes.update(attrs)
     return mesh
@@ -97,9 +95,7 @@ def _gather_attributes(vdata: np.ndarray) -> dict[str, np.ndarray]:
     attrs: dict[str, np.ndarray] = {}
     used: set[str] = set()
     if all(c in props for c in ("red", "green", "blue")):
-        attrs["color"] = np.stack([vdata[c] for c in ("red", "green", "blue")], 1).astype(
-            np.uint8
-        )
+        attrs["color"] = np.stack([vdata[c] for c in ("red", "green", "blue")], 1).astype(np.uint8)
         used |= {"red", "green", "blue", "alpha"}
     for p in props:
         if p in used:

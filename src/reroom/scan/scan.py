@@ -92,8 +92,20 @@ def _parse_intrinsics(src: Path, obj: dict, fallback: Intrinsics | None, where: 
     present = [k for k in _INTRINSIC_KEYS if k in obj]
     if not present and fallback is not None and "camera_model" not in obj:
         return fallback
+    if not present and fallback is None:
+        raise ScanError(
+            src,
+            f"{where} has no intrinsics and there are no global ones (fl_x, fl_y, cx, cy, w, h)",
+        )
     base = fallback.to_json() if fallback is not None else {}
-    merged = {**base, **{k: v for k, v in obj.items() if k in (*_INTRINSIC_KEYS, "camera_model", "k1", "k2", "p1", "p2")}}
+    merged = {
+        **base,
+        **{
+            k: v
+            for k, v in obj.items()
+            if k in (*_INTRINSIC_KEYS, "camera_model", "k1", "k2", "p1", "p2")
+        },
+    }
     model = merged.get("camera_model", "PINHOLE")
     if model not in _CAMERA_MODELS:
         raise ScanError(src, f"{where}: camera_model {model!r} is not one of {_CAMERA_MODELS}")
@@ -101,7 +113,10 @@ def _parse_intrinsics(src: Path, obj: dict, fallback: Intrinsics | None, where: 
     h = _require_number(src, merged, "h", where, positive=True)
     if w != int(w) or h != int(h):
         raise ScanError(src, f"{where}: image size must be whole pixels, got {w}x{h}")
-    dist = {k: _require_number(src, merged, k, where) if k in merged else 0.0 for k in ("k1", "k2", "p1", "p2")}
+    dist = {
+        k: _require_number(src, merged, k, where) if k in merged else 0.0
+        for k in ("k1", "k2", "p1", "p2")
+    }
     return Intrinsics(
         width=int(w),
         height=int(h),
@@ -130,7 +145,9 @@ def validate_pose(matrix: Any, src: Path, where: str, tol: float = 1e-3) -> np.n
     if not np.all(np.isfinite(m)):
         raise ScanError(src, f"{where}: transform_matrix has non-finite entries (NaN or inf)")
     if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
-        raise ScanError(src, f"{where}: transform_matrix last row is {m[3].tolist()}, not [0, 0, 0, 1]")
+        raise ScanError(
+            src, f"{where}: transform_matrix last row is {m[3].tolist()}, not [0, 0, 0, 1]"
+        )
     r = m[:3, :3]
     err = float(np.abs(r.T @ r - np.eye(3)).max())
     det = float(np.linalg.det(r))
@@ -193,20 +210,35 @@ def load_scan(path: str | Path, *, check_images: bool = True) -> Scan:
         if "transform_matrix" not in fj:
             raise ScanError(src, f"{where} lacks 'transform_matrix'")
         intr = _parse_intrinsics(src, fj, global_intr, where)
-        if global_intr is None and not any(k in fj for k in _INTRINSIC_KEYS):
-            raise ScanError(src, f"{where} has no intrinsics and there are no global ones")
         c2w = validate_pose(fj["transform_matrix"], src, where)
         img_path = root / fj["file_path"]
         depth_path = root / fj["depth_file_path"] if fj.get("depth_file_path") else None
         if check_images:
             w, h = image_size(img_path)
             if (w, h) != (intr.width, intr.height):
-                raise ScanError(img_path, f"image is {w}x{h} but the intrinsics say {intr.width}x{intr.height}")
+                raise ScanError(
+                    img_path, f"image is {w}x{h} but the intrinsics say {intr.width}x{intr.height}"
+                )
             if depth_path is not None:
                 dw, dh = image_size(depth_path)
                 if (dw, dh) != (w, h):
                     raise ScanError(depth_path, f"depth map is {dw}x{dh} but its image is {w}x{h}")
-        extra = {k: v for k, v in fj.items() if k not in ("file_path", "transform_matrix", "depth_file_path", *_INTRINSIC_KEYS, "camera_model", "k1", "k2", "p1", "p2")}
+        extra = {
+            k: v
+            for k, v in fj.items()
+            if k
+            not in (
+                "file_path",
+                "transform_matrix",
+                "depth_file_path",
+                *_INTRINSIC_KEYS,
+                "camera_model",
+                "k1",
+                "k2",
+                "p1",
+                "p2",
+            )
+        }
         frames.append(Frame(i, img_path, c2w, intr, depth_path, extra))
 
     mesh_rel = data.get("ply_file_path")

@@ -1,0 +1,240 @@
+"""The ``reroom`` command-line tool (typer + rich)."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+from reroom.errors import ReroomError
+
+app = typer.Typer(
+    name="reroom",
+    help="Turn a room scan into an editable model of its light and materials, and render edits of it.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console(stderr=True)
+
+
+@contextlib.contextmanager
+def _errors() -> Iterator[None]:
+    """Print expected errors as one readable line and exit 1, instead of a traceback."""
+    try:
+        yield
+    except (ReroomError, FileNotFoundError, ValueError) as exc:
+        console.print(f"[bold red]error:[/] {exc}")
+        raise typer.Exit(1) from exc
+
+
+@contextlib.contextmanager
+def _progress() -> Iterator:
+    """A rich progress display and a ``callback(stage, done, total)`` that drives it."""
+    tasks: dict[str, int] = {}
+    with Progress(
+        TextColumn("[bold]{task.description:<16}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    ) as bar:
+
+        def callback(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+
+        yield callback
+
+
+@app.command()
+def doctor() -> None:
+    """Print the environment: Mitsuba variant, LLVM, ray engine, threads, versions."""
+    from reroom.doctor import check_mitsuba_works, environment_report
+
+    table = Table(title="reroom doctor", show_header=False)
+    for k, v in environment_report().items():
+        table.add_row(k, v)
+    ok, msg = check_mitsuba_works()
+    table.add_row("mitsuba check", ("[green]ok[/] " if ok else "[red]FAILED[/] ") + msg)
+    Console().print(table)
+    if not ok:
+        raise typer.Exit(1)
+
+
+@app.command()
+def synth(
+    preset: Annotated[str, typer.Argument(help="box | furnished | lshape | tworooms")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Scan folder to write.")],
+    frames: Annotated[int, typer.Option(help="Number of frames.")] = 24,
+    width: Annotated[int, typer.Option(help="Frame width in pixels.")] = 160,
+    height: Annotated[int, typer.Option(help="Frame height in pixels.")] = 120,
+    fov: Annotated[float, typer.Option(help="Vertical field of view, degrees.")] = 60.0,
+    spp: Annotated[int, typer.Option(help="Path-tracing samples per pixel.")] = 64,
+    vertex_spp: Annotated[
+        int, typer.Option(help="Samples per vertex for the true radiance.")
+    ] = 128,
+    seed: Annotated[int, typer.Option(help="Random seed (trajectory, noise, sampling).")] = 0,
+    hdri: Annotated[
+        str, typer.Option(help="Outdoor HDRI behind the windows: a shipped name or an .exr.")
+    ] = "courtyard",
+    lights: Annotated[
+        str | None, typer.Option(help="Comma-separated names of lights left on (default all).")
+    ] = None,
+    mesh: Annotated[
+        str, typer.Option(help="clean | corrupted | fused (TSDF from rendered depth).")
+    ] = "clean",
+    noise: Annotated[bool, typer.Option(help="Shot and read noise in the frames.")] = True,
+    response: Annotated[
+        str, typer.Option(help="Camera response: gamma2.2 | srgb | linear.")
+    ] = "gamma2.2",
+    save_hdr: Annotated[
+        bool, typer.Option(help="Also save the linear frames as EXR in ground_truth/hdr.")
+    ] = False,
+    sheet: Annotated[bool, typer.Option(help="Write contact_sheet.png of the frames.")] = True,
+) -> None:
+    """Generate a synthetic scan with ground truth, path-traced with Mitsuba 3."""
+    from reroom.synth.camera_sim import CameraModel
+    from reroom.synth.generate import SynthOptions, generate_scan
+
+    with _errors():
+        opts = SynthOptions(
+            frames=frames,
+            width=width,
+            height=height,
+            fov_y_deg=fov,
+            spp=spp,
+            vertex_spp=vertex_spp,
+            seed=seed,
+            hdri=hdri,
+            lights=None if lights is None else [s.strip() for s in lights.split(",") if s.strip()],
+            mesh=mesh,
+            camera=CameraModel(response=response, noise=noise),
+            save_hdr=save_hdr,
+        )
+        t = time.perf_counter()
+        with _progress() as cb:
+            generate_scan(preset, out, opts, progress=cb)
+        console.print(f"[green]wrote[/] {out} ({frames} frames) in {time.perf_counter() - t:.1f} s")
+        if sheet:
+            _write_sheet(out, out / "contact_sheet.png")
+
+
+def _write_sheet(scan_dir: Path, path: Path) -> None:
+    from reroom.scan import load_scan
+    from reroom.viz import contact_sheet
+
+    scan = load_scan(scan_dir)
+    step = max(1, len(scan.frames) // 24)
+    chosen = scan.frames[::step][:24]
+    contact_sheet([f.load_image() for f in chosen], path, labels=[str(f.index) for f in chosen])
+    console.print(f"[green]wrote[/] {path}")
+
+
+@app.command()
+def info(
+    scan: Annotated[Path, typer.Argument(help="Scan folder (or its transforms.json).")],
+) -> None:
+    """Load and validate a scan, and summarise it."""
+    from reroom.scan import load_scan
+
+    with _errors():
+        s = load_scan(scan)
+        m = s.mesh
+        k = s.frames[0].intrinsics
+        table = Table(title=str(s.root), show_header=False)
+        table.add_row("frames", str(len(s.frames)))
+        table.add_row("image size", f"{k.width} x {k.height} ({k.model}, fx {k.fx:.1f})")
+        table.add_row("depth maps", "yes" if s.frames[0].depth_path else "no")
+        table.add_row(
+            "mesh", f"{s.mesh_path.name}: {len(m.vertices)} vertices, {len(m.faces)} faces"
+        )
+        lo, hi = m.bounds
+        table.add_row("mesh extent (m)", " x ".join(f"{x:.2f}" for x in hi - lo))
+        table.add_row("ground truth", "yes" if s.has_ground_truth else "no")
+        Console().print(table)
+
+
+@app.command()
+def sheet(
+    scan: Annotated[Path, typer.Argument(help="Scan folder.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="PNG to write.")] = Path(
+        "contact_sheet.png"
+    ),
+) -> None:
+    """Write a contact sheet of a scan's frames."""
+    with _errors():
+        _write_sheet(scan, out)
+
+
+@app.command("import-rgbd")
+def import_rgbd(
+    folder: Annotated[
+        Path, typer.Argument(help="Folder with color/, depth/, pose.txt and intrinsics.json.")
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Scan folder to write.")],
+    voxel_size: Annotated[float, typer.Option(help="TSDF voxel size, metres.")] = 0.02,
+) -> None:
+    """Fuse a posed RGB-D sequence into a mesh (TSDF) and write it as a scan."""
+    from reroom.importers import import_rgbd_folder
+
+    with _errors(), _progress() as cb:
+        import_rgbd_folder(
+            folder, out, voxel_size=voxel_size, progress=lambda d, n: cb("fuse frames", d, n)
+        )
+    console.print(f"[green]wrote[/] {out}")
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the demo's outputs.")] = Path(
+        "out/demo"
+    ),
+    frames: Annotated[int, typer.Option(help="Number of frames.")] = 24,
+) -> None:
+    """The main job on the embedded default: generate the `furnished` room and its contact sheet."""
+    synth(
+        preset="furnished",
+        out=out / "scan",
+        frames=frames,
+        width=160,
+        height=120,
+        fov=60.0,
+        spp=64,
+        vertex_spp=128,
+        seed=0,
+        hdri="courtyard",
+        lights=None,
+        mesh="clean",
+        noise=True,
+        response="gamma2.2",
+        save_hdr=False,
+        sheet=False,
+    )
+    with _errors():
+        _write_sheet(out / "scan", out / "contact_sheet.png")
+
+
+def main() -> None:  # pragma: no cover - entry point
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,244 @@
+"""``reroom synth``: generate a synthetic scan with complete ground truth.
+
+Pipeline: preset -> scene files -> Mitsuba scene -> handheld trajectory ->
+path-traced linear frames -> simulated auto-exposure camera -> 8-bit frames ->
+scan mesh (clean, corrupted or fused from depth) -> per-vertex truth (labels,
+albedo, path-traced radiance) -> ``transforms.json`` + ``ground_truth/``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from reroom.io.atomic import atomic_write_json
+from reroom.io.images import write_exr
+from reroom.io.mesh import write_ply
+from reroom.scan.camera import Frame, Intrinsics
+from reroom.scan.scan import write_scan
+from reroom.synth.camera_sim import AutoCamera, CameraModel
+from reroom.synth.groundtruth import clean_surface, transfer_truth
+from reroom.synth.labels import LABELS
+from reroom.synth.presets import PRESETS, build_preset
+from reroom.synth.scene import mitsuba_scene_dict, write_scene
+from reroom.synth.trajectory import walk_and_look
+
+#: progress(stage, done, total)
+ProgressFn = Callable[[str, int, int], None]
+MESH_KINDS = ("clean", "corrupted", "fused")
+
+
+@dataclass
+class SynthOptions:
+    """Options of :func:`generate_scan` (the CLI flags of ``reroom synth``)."""
+
+    frames: int = 24
+    width: int = 160
+    height: int = 120
+    fov_y_deg: float = 60.0
+    spp: int = 64
+    vertex_spp: int = 128
+    max_depth: int = -1
+    seed: int = 0
+    hdri: str = "courtyard"
+    lights: Sequence[str] | None = None  # names of lights left on; None = all
+    mesh: str = "clean"
+    mesh_spacing: float = 0.08
+    camera: CameraModel = field(default_factory=CameraModel)
+    save_hdr: bool = False
+    voxel_size: float = 0.03
+
+    def to_json(self) -> dict[str, Any]:
+        d = {k: v for k, v in self.__dict__.items() if k != "camera"}
+        d["lights"] = None if self.lights is None else list(self.lights)
+        d["camera"] = self.camera.to_json()
+        return d
+
+
+def _noop(stage: str, done: int, total: int) -> None:
+    pass
+
+
+def generate_scan(
+    preset: str,
+    out_dir: str | Path,
+    options: SynthOptions | None = None,
+    progress: ProgressFn | None = None,
+) -> Path:
+    """Generate a synthetic scan of ``preset`` into ``out_dir``; return the folder.
+
+    See :class:`SynthOptions` for the knobs and ``docs/formats.md`` for what is
+    written. Deterministic for a given seed and options.
+    """
+    opt = options or SynthOptions()
+    progress = progress or _noop
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
+    if opt.mesh not in MESH_KINDS:
+        raise ValueError(f"unknown mesh kind {opt.mesh!r}; choose one of {MESH_KINDS}")
+    if opt.frames < 1 or opt.width < 8 or opt.height < 8 or opt.spp < 1:
+        raise ValueError("frames must be >= 1, width/height >= 8 and spp >= 1")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    gt_dir = out / "ground_truth"
+    scene_dir = gt_dir / "scene"
+    rng = np.random.default_rng(opt.seed)
+
+    spec = build_preset(preset, hdri=opt.hdri, mesh_spacing=opt.mesh_spacing)
+    desc = write_scene(spec, scene_dir, max_depth=opt.max_depth)
+    names = [light["name"] for light in desc["lights"]]
+    if opt.lights is not None:
+        unknown = sorted(set(opt.lights) - set(names))
+        if unknown:
+            raise ValueError(f"preset {preset!r} has no light(s) {unknown}; its lights are {names}")
+        for light in desc["lights"]:
+            light["on"] = light["name"] in set(opt.lights)
+        atomic_write_json(scene_dir / "scene.json", desc)
+    timings["scene"] = time.perf_counter() - t0
+
+    from reroom.render import mitsuba
+
+    mi = mitsuba()
+    from reroom.synth.render import FrameRenderer, probe_radiance
+
+    intr = Intrinsics.from_fov(opt.width, opt.height, opt.fov_y_deg)
+    poses = walk_and_look(spec.waypoints, opt.frames, rng)
+    t = time.perf_counter()
+    renderer = FrameRenderer(mitsuba_scene_dict(desc, scene_dir), intr, opt.spp)
+    cam = AutoCamera(opt.camera, np.random.default_rng(opt.seed + 1))
+    images, frame_truth = [], []
+    for j, c2w in enumerate(poses):
+        radiance = renderer.render(c2w, seed=opt.seed * 100003 + j)
+        if not np.all(np.isfinite(radiance)):
+            radiance = np.nan_to_num(radiance, nan=0.0, posinf=0.0)
+        img, scale, exposure, wb = cam.capture(radiance)
+        images.append(img)
+        frame_truth.append(
+            {
+                "index": j,
+                "exposure": exposure,
+                "white_balance": wb.tolist(),
+                "scale": scale.tolist(),
+                "saturated_fraction": float(np.mean(img.max(axis=2) >= 255)),
+            }
+        )
+        if opt.save_hdr:
+            write_exr(gt_dir / "hdr" / f"frame_{j:05d}.exr", radiance)
+        progress("render frames", j + 1, len(poses))
+    timings["render_frames"] = time.perf_counter() - t
+
+    # --- the scanned mesh and its per-vertex truth ------------------------------------------
+    t = time.perf_counter()
+    clean = clean_surface(desc, scene_dir)
+    if opt.mesh == "clean":
+        mesh = trimesh.Trimesh(clean.vertices, clean.faces, process=False)
+        normals = clean.normals
+        truth = {
+            "part": clean.part,
+            "label": clean.label,
+            "albedo": clean.albedo,
+            "distance": np.zeros(len(clean.vertices)),
+        }
+        probe_offset = 0.004
+    else:
+        if opt.mesh == "corrupted":
+            from reroom.synth.scanner import corrupt_mesh
+
+            mesh = corrupt_mesh(clean.vertices, clean.faces, rng)
+        else:
+            from reroom.rays import RayCaster
+            from reroom.synth.scanner import fuse_depth_maps, kinect_noise, render_depth
+
+            caster = RayCaster(clean.vertices, clean.faces)
+            frames = [Frame(j, Path(), c2w, intr) for j, c2w in enumerate(poses)]
+            depth_rng = np.random.default_rng(opt.seed + 2)
+            depths = []
+            for j, fr in enumerate(frames):
+                depths.append(kinect_noise(render_depth(caster, fr), depth_rng))
+                progress("depth maps", j + 1, len(frames))
+            mesh = fuse_depth_maps(
+                depths,
+                frames,
+                intr,
+                voxel_size=opt.voxel_size,
+                progress=lambda d, n: progress("tsdf fusion", d, n),
+            )
+        normals = np.asarray(mesh.vertex_normals)
+        truth = transfer_truth(clean, desc, scene_dir, np.asarray(mesh.vertices), normals)
+        probe_offset = 0.03
+    timings["mesh"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    # Radiance of the true surface point each vertex stands for, seen along the vertex normal.
+    probe_points = np.asarray(mesh.vertices) if opt.mesh == "clean" else truth["surface_point"]
+    radiance, stderr = probe_radiance(
+        renderer.scene,
+        probe_points,
+        normals,
+        opt.vertex_spp,
+        seed=opt.seed,
+        offset=probe_offset if opt.mesh == "clean" else 0.004,
+        progress=lambda d, n: progress("vertex radiance", d, n),
+    )
+    timings["vertex_radiance"] = time.perf_counter() - t
+
+    # --- write --------------------------------------------------------------------------------
+    t = time.perf_counter()
+    gt_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    write_ply(
+        gt_dir / "vertices.ply",
+        gt_mesh,
+        {
+            "label": truth["label"].astype(np.uint8),
+            "part": truth["part"].astype(np.int32),
+            "albedo": truth["albedo"],
+            "radiance": radiance,
+            "radiance_stderr": stderr,
+            "surface_distance": truth["distance"],
+        },
+    )
+    scan_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    meta = {
+        "reroom": {
+            "source": "reroom synth",
+            "preset": preset,
+            "response": opt.camera.response,
+        }
+    }
+    # The scan's own mesh carries no truth: estimation stages must not see labels or albedo.
+    scan_mesh.vertex_attributes.clear()
+    write_scan(out, scan_mesh, intr, poses, images, meta=meta)
+    truth_doc = {
+        "format": "reroom-ground-truth",
+        "version": 1,
+        "preset": preset,
+        "options": opt.to_json(),
+        "mitsuba_variant": mi.variant(),
+        "mesh": {
+            "kind": opt.mesh,
+            "vertices": int(len(mesh.vertices)),
+            "faces": int(len(mesh.faces)),
+            "vertex_file": "vertices.ply",
+            "vertex_radiance_spp": opt.vertex_spp,
+        },
+        "labels": {
+            k: v for k, v in __import__("reroom.synth.labels", fromlist=["LABELS"]).LABELS.items()
+        },
+        "frames": frame_truth,
+        "lights": desc["lights"],
+        "layout": spec.layout,
+        "scene": "scene/scene.json",
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+    }
+    timings["write"] = time.perf_counter() - t
+    truth_doc["timings_s"]["write"] = round(timings["write"], 3)
+    truth_doc["timings_s"]["total"] = round(time.perf_counter() - t0, 3)
+    atomic_write_json(gt_dir / "ground_truth.json", truth_doc)
+    return out

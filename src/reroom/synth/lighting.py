@@ -1,0 +1,61 @@
+"""Mitsuba emitters for the light types of a scene description.
+
+* ``area`` (ceiling panels) and ``line`` (fluorescent tubes) are diffuse area
+  emitters on their part's mesh;
+* ``window`` is a portal emitter on the part filling the window opening, which
+  shows the outdoor HDRI (see :mod:`reroom.render.emitters`);
+* ``point`` is a tabulated goniometric point light: isotropic, or an IES LM-63
+  profile (see :mod:`reroom.render.emitters`).
+
+Point-light ``power`` is the radiant flux in scene units (the emitted intensity
+is ``power * shape(w) / integral(shape)``, times ``color`` normalised to mean 1).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def normalized_color(color: list[float]) -> np.ndarray:
+    """RGB colour scaled to mean 1 so that ``power`` keeps its meaning."""
+    c = np.asarray(color, float)
+    return c / c.mean()
+
+
+def shape_emitter(light: dict, scene_dir: Path, mi: Any) -> dict | None:
+    """The emitter dict to attach to a light's part, or ``None`` if it has none."""
+    kind = light["type"]
+    if kind in ("area", "line"):
+        return {"type": "area", "radiance": {"type": "rgb", "value": list(light["radiance"])}}
+    if kind == "window":
+        from reroom.render import emitters
+
+        return emitters.portal_emitter(
+            str(scene_dir / light["hdri_file"]),
+            scale=float(light.get("scale", 1.0)),
+            rotation_deg=float(light.get("rotation_deg", 0.0)),
+        )
+    return None
+
+
+def point_emitter(light: dict, scene_dir: Path, mi: Any) -> dict:
+    """The emitter dict of a point light (isotropic or IES profile)."""
+    from reroom.render import emitters
+
+    color = normalized_color(light.get("color", [1.0, 1.0, 1.0]))
+    distribution: Any = 1.0
+    if light["profile"] != "isotropic":
+        from reroom.io.ies import read_ies
+
+        distribution = read_ies(scene_dir / light["profile_file"])
+    up = np.asarray(light.get("up", [0.0, 0.0, 1.0]), float)
+    return emitters.goniometric_light(
+        distribution,
+        position=light["position"],
+        frame=emitters.luminaire_frame(nadir=-up),
+        color=color.tolist(),
+        flux=float(light["power"]),
+    )

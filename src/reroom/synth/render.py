@@ -1,0 +1,136 @@
+"""Path-traced frames and per-vertex radiance from a Mitsuba scene.
+
+Both go through Mitsuba's ``path`` integrator, i.e. the same physically based
+light transport, never through reroom's own (inverse) light model -- later
+stages must not be tested on data made by their own assumptions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from reroom.render import mitsuba
+from reroom.scan.camera import Intrinsics
+
+#: Mitsuba's perspective camera looks down +z with +y up and +x to the *left*;
+#: the scan format's OpenGL camera looks down -z with +x right. This flips x and z.
+GL_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
+
+
+def sensor_dict(c2w: np.ndarray, intr: Intrinsics, spp: int, seed: int = 0) -> dict[str, Any]:
+    """A Mitsuba ``perspective`` sensor matching a scan frame's pose and pinhole intrinsics.
+
+    Only pinhole geometry is modelled (distortion is ignored); an off-centre
+    principal point is expressed through Mitsuba's principal-point offsets.
+    """
+    mi = mitsuba()
+    return {
+        "type": "perspective",
+        "fov": intr.fov_y_deg,
+        "fov_axis": "y",
+        "principal_point_offset_x": (intr.cx - intr.width / 2.0) / intr.width,
+        "principal_point_offset_y": (intr.cy - intr.height / 2.0) / intr.height,
+        "near_clip": 0.01,
+        "far_clip": 1000.0,
+        "to_world": mi.ScalarTransform4f(np.asarray(c2w, float) @ GL_TO_MITSUBA),
+        "film": {
+            "type": "hdrfilm",
+            "width": intr.width,
+            "height": intr.height,
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+        },
+        "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
+    }
+
+
+class FrameRenderer:
+    """Renders many frames of one scene, re-posing a single sensor between frames.
+
+    Re-using the loaded scene lets Dr.Jit reuse its compiled kernels: after the
+    first frame, each frame costs only its samples.
+    """
+
+    def __init__(self, scene_dict: dict[str, Any], intr: Intrinsics, spp: int) -> None:
+        mi = mitsuba()
+        self.mi = mi
+        self.intr = intr
+        self.spp = spp
+        d = dict(scene_dict)
+        d["sensor"] = sensor_dict(np.eye(4), intr, spp)
+        self.scene = mi.load_dict(d)
+        self.params = mi.traverse(self.scene)
+        if "sensor.to_world" not in self.params:
+            raise RuntimeError("this Mitsuba build does not expose sensor.to_world for updates")
+
+    def render(self, c2w: np.ndarray, seed: int) -> np.ndarray:
+        """Linear RGB radiance ``(H, W, 3)`` float32 for camera pose ``c2w`` (OpenGL axes)."""
+        mi = self.mi
+        self.params["sensor.to_world"] = mi.ScalarTransform4f(
+            np.asarray(c2w, float) @ GL_TO_MITSUBA
+        )
+        self.params.update()
+        img = mi.render(self.scene, spp=self.spp, seed=seed)
+        return np.asarray(img, dtype=np.float32)[..., :3]
+
+
+def probe_radiance(
+    scene: Any,
+    points: np.ndarray,
+    normals: np.ndarray,
+    spp: int,
+    seed: int = 0,
+    offset: float = 0.004,
+    batch_rays: int = 2_000_000,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Outgoing radiance of surface points toward their normals, by path tracing.
+
+    For each point a ray starts ``offset`` metres out along the normal and
+    looks back at the point, so the integrator returns the radiance leaving
+    the surface toward the normal direction (emission included). For diffuse
+    surfaces that is *the* radiance; for glossy ones it is the radiance seen
+    head-on.
+
+    Returns ``(mean, stderr)``, each ``(N, 3)``: the Monte-Carlo estimate and
+    its standard error (from the per-sample variance).
+    """
+    mi = mitsuba()
+    import drjit as dr
+
+    points = np.asarray(points, np.float64)
+    normals = np.asarray(normals, np.float64)
+    n = len(points)
+    integrator = scene.integrator()
+    total = np.zeros((n, 3))
+    total_sq = np.zeros((n, 3))
+    per_batch = max(1, batch_rays // max(spp, 1))
+    done = 0
+    for start in range(0, n, per_batch):
+        stop = min(n, start + per_batch)
+        m = stop - start
+        o = (points[start:stop] + offset * normals[start:stop]).astype(np.float32)
+        d = (-normals[start:stop]).astype(np.float32)
+        o_rep = np.repeat(o, spp, axis=0)
+        d_rep = np.repeat(d, spp, axis=0)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed * 7919 + start, m * spp)
+        ray = mi.Ray3f(mi.Point3f(*o_rep.T), mi.Vector3f(*d_rep.T))
+        ray.maxt = 2.0 * offset
+        # maxt bounds only the first segment: the first hit must be the point itself.
+        spec, _, _ = integrator.sample(scene, sampler, ray)
+        vals = np.asarray(spec, dtype=np.float64)
+        vals = vals.T if vals.shape[0] == 3 and vals.ndim == 2 else vals
+        vals = vals.reshape(m, spp, 3)
+        total[start:stop] = vals.sum(1)
+        total_sq[start:stop] = (vals**2).sum(1)
+        dr.flush_malloc_cache()
+        done += m
+        if progress is not None:
+            progress(done, n)
+    mean = total / spp
+    var = np.maximum(total_sq / spp - mean**2, 0.0)
+    return mean, np.sqrt(var / max(spp - 1, 1))
