@@ -92,7 +92,12 @@ def render_mesh_image(
     scene = mi.load_dict(
         {
             "type": "scene",
-            "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1},
+            "integrator": {
+                "type": "direct",
+                "emitter_samples": 1,
+                "bsdf_samples": 1,
+                "hide_emitters": True,
+            },
             "sensor": {
                 "type": "perspective",
                 "fov_axis": "y",

@@ -228,9 +228,7 @@ def generate_scan(
             "vertex_file": "vertices.ply",
             "vertex_radiance_spp": opt.vertex_spp,
         },
-        "labels": {
-            k: v for k, v in __import__("reroom.synth.labels", fromlist=["LABELS"]).LABELS.items()
-        },
+        "labels": dict(LABELS),
         "frames": frame_truth,
         "lights": desc["lights"],
         "layout": spec.layout,
