@@ -109,6 +109,7 @@ def synth(
         bool, typer.Option(help="Also save the linear frames as EXR in ground_truth/hdr.")
     ] = False,
     sheet: Annotated[bool, typer.Option(help="Write contact_sheet.png of the frames.")] = True,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing scan in --out.")] = False,
 ) -> None:
     """Generate a synthetic scan with ground truth, path-traced with Mitsuba 3."""
     from reroom.synth.camera_sim import CameraModel
@@ -131,7 +132,7 @@ def synth(
         )
         t = time.perf_counter()
         with _progress() as cb:
-            generate_scan(preset, out, opts, progress=cb)
+            generate_scan(preset, out, opts, progress=cb, overwrite=overwrite)
         console.print(f"[green]wrote[/] {out} ({frames} frames) in {time.perf_counter() - t:.1f} s")
         if sheet:
             _write_sheet(out, out / "contact_sheet.png")

@@ -1,11 +1,14 @@
-"""A quick offscreen picture of an imported mesh (vertex colours, soft ambient light).
+"""A quick offscreen picture of an imported mesh (vertex colours, simple shading).
 
-Rendered with Mitsuba (:func:`reroom.render.mitsuba`): the mesh's sRGB vertex
-colours become the albedo of a two-sided diffuse material lit by a uniform
-white environment, traced with direct lighting only. Surfaces open to the sky
-show their colour as captured; creases and corners darken like ambient
-occlusion, which is what makes the geometry readable. It runs headless, on
-the CPU, in a few seconds for a few hundred thousand triangles.
+Rendered with Mitsuba (:func:`reroom.render.mitsuba`) on the CPU, headless, in
+a few seconds for a few hundred thousand triangles. The mesh's sRGB vertex
+colours are the albedo of a two-sided diffuse material. Two shadings:
+
+* ``"headlight"`` (default): albedo times ``0.3 + 0.7 |n . v|``, a light at
+  the eye. Works for closed rooms too (viewed from inside).
+* ``"ambient"``: direct light from a uniform white sky, which darkens creases
+  like ambient occlusion; nicer for open partial scans, but a closed room
+  seen from inside gets no sky light and comes out black.
 """
 
 from __future__ import annotations
@@ -47,16 +50,21 @@ def render_mesh_image(
     c2w: np.ndarray,
     intrinsics: Intrinsics,
     *,
-    spp: int = 32,
+    spp: int = 16,
     background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+    shading: str = "headlight",
     seed: int = 0,
 ) -> np.ndarray:
     """Render ``mesh`` seen by a pinhole camera; return ``(H, W, 3)`` uint8 sRGB.
 
     ``c2w`` is camera-to-world in OpenGL axes (the scan format's); the image has
-    the intrinsics' size, field of view and principal point.
+    the intrinsics' size, field of view and principal point. ``shading`` is
+    ``"headlight"`` or ``"ambient"`` (see the module notes).
     """
     from reroom.render import mitsuba
+
+    if shading not in ("headlight", "ambient"):
+        raise ValueError(f"shading must be 'headlight' or 'ambient', got {shading!r}")
 
     mi = mitsuba()
     verts = np.ascontiguousarray(np.asarray(mesh.vertices, dtype=np.float32))
@@ -93,23 +101,30 @@ def render_mesh_image(
         {
             "type": "scene",
             "integrator": {
-                "type": "direct",
-                "emitter_samples": 1,
-                "bsdf_samples": 1,
-                "hide_emitters": True,
+                "type": "aov",
+                "aovs": "albedo:albedo,normal:sh_normal",
+                # Headlight shading needs only the AOVs and the coverage (alpha):
+                # no light samples at all.
+                "image": (
+                    {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1}
+                    if shading == "ambient"
+                    else {"type": "path", "max_depth": 1}
+                )
+                | {"hide_emitters": True},
             },
             "sensor": {
                 "type": "perspective",
                 "fov_axis": "y",
                 "fov": float(k.fov_y_deg),
-                # Offsets of the principal point from the film centre, in film
-                # fractions (x to the right, y down, as pixel coordinates).
-                "principal_point_offset_x": float((k.cx - k.width / 2.0) / k.width),
-                "principal_point_offset_y": float((k.cy - k.height / 2.0) / k.height),
+                # Mitsuba's principal-point offsets are film fractions with the
+                # opposite sign of pixel coordinates (checked by the tests: a
+                # point lands where Frame.project puts it).
+                "principal_point_offset_x": float((k.width / 2.0 - k.cx) / k.width),
+                "principal_point_offset_y": float((k.height / 2.0 - k.cy) / k.height),
                 "near_clip": 0.01,
                 "far_clip": 1000.0,
                 "to_world": mi.ScalarTransform4f(to_world.tolist()),
-                "sampler": {"type": "stratified", "sample_count": int(spp), "seed": int(seed)},
+                "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
                 "film": {
                     "type": "hdrfilm",
                     "width": int(k.width),
@@ -122,12 +137,28 @@ def render_mesh_image(
             "room": shape,
         }
     )
-    img = np.asarray(mi.render(scene, seed=int(seed), spp=int(spp)), dtype=np.float32)
-    rgb, alpha = img[..., :3], np.clip(img[..., 3:4], 0.0, 1.0)
-    # The sky shows through where no surface is hit: paint it the background instead.
-    bg = _srgb_to_linear(np.asarray(background, dtype=np.float64)).astype(np.float32)
+    img = np.asarray(mi.render(scene, seed=int(seed), spp=int(spp)), dtype=np.float64)
+    alpha = np.clip(img[..., 3:4], 0.0, 1.0)
+    if shading == "ambient":
+        rgb = img[..., :3]
+    else:
+        # AOVs are averaged over the pixel's samples, misses counting as 0.
+        cover = np.maximum(alpha, 1e-6)
+        albedo = img[..., 4:7] / cover
+        normal = img[..., 7:10]
+        normal = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-9)
+        jj, ii = np.meshgrid(np.arange(k.width) + 0.5, np.arange(k.height) + 0.5)
+        d_cam = np.stack([(jj - k.cx) / k.fx, -(ii - k.cy) / k.fy, -np.ones_like(jj)], axis=-1)
+        view = d_cam @ np.asarray(c2w, dtype=np.float64)[:3, :3].T
+        view /= np.linalg.norm(view, axis=-1, keepdims=True)
+        facing = np.abs((normal * view).sum(axis=-1, keepdims=True))
+        rgb = albedo * (0.3 + 0.7 * facing) * alpha
+    # Where no surface is hit, show the background.
+    bg = _srgb_to_linear(np.asarray(background, dtype=np.float64))
     rgb = rgb + (1.0 - alpha) * bg
-    srgb = np.where(rgb <= 0.0031308, rgb * 12.92, 1.055 * np.power(np.maximum(rgb, 0), 1 / 2.4) - 0.055)
+    srgb = np.where(
+        rgb <= 0.0031308, rgb * 12.92, 1.055 * np.power(np.maximum(rgb, 0), 1 / 2.4) - 0.055
+    )
     return np.clip(np.round(srgb * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -137,26 +168,63 @@ def render_mesh_preview(
     intrinsics: Intrinsics,
     path: str | Path,
     *,
-    spp: int = 32,
+    spp: int = 16,
     background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+    shading: str = "headlight",
+    inset: np.ndarray | None = None,
+    inset_fraction: float = 0.3,
 ) -> Path:
-    """Render ``mesh`` (vertex colours) from ``c2w`` (OpenGL axes) and write a PNG to ``path``."""
-    image = render_mesh_image(mesh, c2w, intrinsics, spp=spp, background=background)
+    """Render ``mesh`` (vertex colours) from ``c2w`` (OpenGL axes) and write a PNG to ``path``.
+
+    ``inset``, an ``(H, W, 3)`` uint8 image (say, one input frame), is pasted
+    into the top-left corner at ``inset_fraction`` of the picture's width,
+    with a thin dark frame, for a side-by-side look at input and result.
+    """
+    image = render_mesh_image(
+        mesh, c2w, intrinsics, spp=spp, background=background, shading=shading
+    )
+    if inset is not None:
+        image = paste_inset(image, inset, inset_fraction)
     return write_rgb8(path, image)
+
+
+def paste_inset(
+    image: np.ndarray, inset: np.ndarray, fraction: float = 0.3, margin: int = 8
+) -> np.ndarray:
+    """Copy of ``image`` with ``inset`` resized to ``fraction`` of its width in the top-left."""
+    from PIL import Image
+
+    out = np.array(image, dtype=np.uint8, copy=True)
+    h, w = out.shape[:2]
+    ih, iw = inset.shape[:2]
+    tw = max(8, round(w * fraction))
+    th = max(8, round(ih * tw / iw))
+    small = np.asarray(
+        Image.fromarray(np.asarray(inset, dtype=np.uint8)).resize((tw, th), Image.LANCZOS)
+    )
+    y0, x0 = margin, margin
+    if y0 + th + 2 > h or x0 + tw + 2 > w:
+        return out
+    out[y0 - 2 : y0 + th + 2, x0 - 2 : x0 + tw + 2] = 40
+    out[y0 : y0 + th, x0 : x0 + tw] = small[..., :3]
+    return out
 
 
 def overview_camera(
     first_c2w: np.ndarray,
     mesh: trimesh.Trimesh,
     *,
-    back: float = 1.5,
-    up: float = 1.0,
+    back: float = 0.6,
+    up: float = 0.35,
 ) -> np.ndarray:
-    """A camera behind and above ``first_c2w`` (OpenGL axes, +Z up) looking into the room.
+    """A camera ``back`` metres behind and ``up`` above ``first_c2w`` looking into the room.
 
-    It looks at the median of the mesh vertices in front of the first camera,
-    so the picture shows what the capture saw, with the capture's own
-    position in the foreground.
+    ``first_c2w`` is camera-to-world in OpenGL axes, in a +Z-up world. The new
+    camera aims at the middle of what lies in front of the first camera (the
+    centre of the 5th to 95th percentile box of the mesh vertices ahead of
+    it), so the picture shows what the capture saw from a little further
+    back. Stepping back far reveals the capture's occlusion shadows (floor
+    behind chairs, table behind its centrepiece): nobody saw those.
     """
     c2w = np.asarray(first_c2w, dtype=np.float64)
     eye0 = c2w[:3, 3]
@@ -167,9 +235,36 @@ def overview_camera(
     level /= np.linalg.norm(level)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     ahead = v[(v - eye0) @ fwd > 0.5]
-    target = np.median(ahead, axis=0) if len(ahead) else eye0 + 3.0 * level
+    if len(ahead):
+        lo, hi = np.percentile(ahead, [5.0, 95.0], axis=0)
+        target = 0.5 * (lo + hi)
+    else:
+        target = eye0 + 3.0 * level
     eye = eye0 - back * level + np.array([0.0, 0.0, up])
-    return look_at(eye, target)
+    cam = look_at(eye, target)
+    # Re-aim at the middle of the angular spread of what is ahead, so that a
+    # near floor and a far, short wall both stay in the picture.
+    if len(ahead):
+        d = ahead - eye
+        right, true_up, fwd_n = cam[:3, 0], cam[:3, 1], -cam[:3, 2]
+        depth = d @ fwd_n
+        d = d[depth > 0.1]
+        depth = depth[depth > 0.1]
+        if len(d):
+            yaw = np.arctan2(d @ right, depth)
+            pitch = np.arctan2(d @ true_up, depth)
+            ylo, yhi = np.percentile(yaw, [2.0, 98.0])
+            plo, phi = np.percentile(pitch, [2.0, 98.0])
+            yc, pc = 0.5 * (ylo + yhi), 0.5 * (plo + phi)
+            aim = np.cos(pc) * (np.cos(yc) * fwd_n + np.sin(yc) * right) + np.sin(pc) * true_up
+            cam = look_at(eye, eye + aim)
+    return cam
 
 
-__all__ = ["mesh_vertex_colors", "overview_camera", "render_mesh_image", "render_mesh_preview"]
+__all__ = [
+    "mesh_vertex_colors",
+    "overview_camera",
+    "paste_inset",
+    "render_mesh_image",
+    "render_mesh_preview",
+]

@@ -93,6 +93,7 @@ class AutoCamera:
         ``scale_rgb = exposure * wb_rgb`` is the per-channel linear scale.
         """
         m = self.model
+        radiance = np.asarray(radiance, dtype=np.float64)
         target_e, target_wb = self.meter(radiance)
         if self._exposure is None:
             self._exposure, self._wb = target_e, target_wb

@@ -65,16 +65,40 @@ def _noop(stage: str, done: int, total: int) -> None:
     pass
 
 
+def _prepare_out_dir(out: Path, overwrite: bool) -> None:
+    """Refuse to mix a new scan with an old one; with ``overwrite``, remove the old one's files."""
+    import shutil
+
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a folder")
+    if not any(out.iterdir()):
+        return
+    if not overwrite:
+        raise ValueError(f"{out}: folder is not empty (pass --overwrite to replace the scan in it)")
+    # transforms.json goes first, so an interrupted run never leaves a folder that
+    # looks like a whole scan.
+    for name in ("transforms.json", "images", "depth", "ground_truth", "mesh.ply", "contact_sheet.png"):
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
 def generate_scan(
     preset: str,
     out_dir: str | Path,
     options: SynthOptions | None = None,
     progress: ProgressFn | None = None,
+    overwrite: bool = False,
 ) -> Path:
     """Generate a synthetic scan of ``preset`` into ``out_dir``; return the folder.
 
     See :class:`SynthOptions` for the knobs and ``docs/formats.md`` for what is
-    written. Deterministic for a given seed and options.
+    written. Deterministic for a given seed and options. ``out_dir`` must be
+    absent or empty unless ``overwrite`` is set.
     """
     opt = options or SynthOptions()
     progress = progress or _noop
@@ -87,6 +111,7 @@ def generate_scan(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     out = Path(out_dir)
+    _prepare_out_dir(out, overwrite)
     gt_dir = out / "ground_truth"
     scene_dir = gt_dir / "scene"
     rng = np.random.default_rng(opt.seed)

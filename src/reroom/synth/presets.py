@@ -305,10 +305,10 @@ def build_preset(name: str, hdri: str = "courtyard", mesh_spacing: float = 0.08)
         p, light = _tube("tube", 3.8, 5.0, 3.4, 2.7, h, [12.0, 12.5, 13.0])
         extra += p
         lights.append(light)
-        p, light = _floor_lamp("floor_lamp", 0.55, 0.55, h, 25.0, warm)
+        p, light = _floor_lamp("floor_lamp", 0.55, 0.55, h, 10.0, warm)
         extra += p
         lights.append(light)
-        p, light = _downlight("downlight", 5.3, 3.9, 2.7, "ies_light_2", 15.0, cool)
+        p, light = _downlight("downlight", 5.3, 3.9, 2.7, "ies_light_2", 8.0, cool)
         extra += p
         lights.append(light)
         extra += _table(2.3, 3.7, 1.9, 2.7, h)
@@ -395,7 +395,7 @@ def build_preset(name: str, hdri: str = "courtyard", mesh_spacing: float = 0.08)
         p, light = _tube("tube", 5.6, 6.8, 2.25, 2.7, h, [12.0, 12.5, 13.0])
         extra += p
         lights.append(light)
-        p, light = _floor_lamp("floor_lamp", 7.65, 3.95, h, 25.0, warm)
+        p, light = _floor_lamp("floor_lamp", 7.65, 3.95, h, 10.0, warm)
         extra += p
         lights.append(light)
         extra += _table(0.5, 1.7, 3.2, 4.0, h)

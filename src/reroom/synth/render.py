@@ -43,7 +43,7 @@ def sensor_dict(c2w: np.ndarray, intr: Intrinsics, spp: int, seed: int = 0) -> d
             "rfilter": {"type": "box"},
             "pixel_format": "rgb",
         },
-        "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
+        "sampler": {"type": "multijitter", "sample_count": spp, "seed": seed},
     }
 
 
@@ -61,7 +61,7 @@ class FrameRenderer:
         self.spp = spp
         d = dict(scene_dict)
         d["sensor"] = sensor_dict(np.eye(4), intr, spp)
-        self.scene = mi.load_dict(d)
+        self.scene = mi.load_dict(d, optimize=False)
         self.params = mi.traverse(self.scene)
         if "sensor.to_world" not in self.params:
             raise RuntimeError("this Mitsuba build does not expose sensor.to_world for updates")
@@ -84,6 +84,7 @@ def probe_radiance(
     spp: int,
     seed: int = 0,
     offset: float = 0.004,
+    jitter: float = 0.001,
     batch_rays: int = 2_000_000,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -95,15 +96,24 @@ def probe_radiance(
     surfaces that is *the* radiance; for glossy ones it is the radiance seen
     head-on.
 
+    Each sample's ray is shifted sideways by a random offset within ``jitter``
+    metres: a ray aimed exactly at a mesh vertex runs along the edges of the
+    triangles around it, and Mitsuba's (non-watertight) intersection test can
+    let it slip through, which would read as zero radiance.
+
     Returns ``(mean, stderr)``, each ``(N, 3)``: the Monte-Carlo estimate and
     its standard error (from the per-sample variance).
     """
     mi = mitsuba()
     import drjit as dr
 
+    from reroom.rays.sampling import orthonormal_basis
+
     points = np.asarray(points, np.float64)
     normals = np.asarray(normals, np.float64)
+    normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     n = len(points)
+    rng = np.random.default_rng(seed)
     integrator = scene.integrator()
     total = np.zeros((n, 3))
     total_sq = np.zeros((n, 3))
@@ -112,10 +122,16 @@ def probe_radiance(
     for start in range(0, n, per_batch):
         stop = min(n, start + per_batch)
         m = stop - start
-        o = (points[start:stop] + offset * normals[start:stop]).astype(np.float32)
-        d = (-normals[start:stop]).astype(np.float32)
+        nrm = normals[start:stop]
+        t1, t2 = orthonormal_basis(nrm)
+        o = points[start:stop] + offset * nrm
         o_rep = np.repeat(o, spp, axis=0)
-        d_rep = np.repeat(d, spp, axis=0)
+        r = jitter * np.sqrt(rng.random(m * spp))
+        phi = 2 * np.pi * rng.random(m * spp)
+        o_rep += (r * np.cos(phi))[:, None] * np.repeat(t1, spp, 0)
+        o_rep += (r * np.sin(phi))[:, None] * np.repeat(t2, spp, 0)
+        o_rep = o_rep.astype(np.float32)
+        d_rep = np.repeat(-nrm, spp, axis=0).astype(np.float32)
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed * 7919 + start, m * spp)
         ray = mi.Ray3f(mi.Point3f(*o_rep.T), mi.Vector3f(*d_rep.T))

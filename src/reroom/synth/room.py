@@ -153,9 +153,9 @@ def build_room(
                 grid_rect(a + up * o.z0, up, -n3, o.z1 - o.z0, o.depth, h),
                 grid_rect(b + up * o.z0 + out, up, n3, o.z1 - o.z0, o.depth, h),
                 # head (top) faces down
-                grid_rect(a + up * o.z1, -n3, d3, o.depth, w, h),
+                grid_rect(a + up * o.z1, d3, -n3, w, o.depth, h),
             ]
-            sill = grid_rect(a + up * o.z0, d3, -n3, w, o.depth, h)  # faces up
+            sill = grid_rect(a + up * o.z0, -n3, d3, o.depth, w, h)  # faces up
             if o.kind == "window":
                 reveal.append(sill)
             parts.append(

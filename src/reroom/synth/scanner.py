@@ -89,38 +89,31 @@ def fuse_depth_maps(
     depth_trunc: float = 8.0,
     progress: Callable[[int, int], None] | None = None,
 ) -> trimesh.Trimesh:
-    """TSDF-fuse depth maps (metres) from posed frames into a mesh with Open3D.
+    """TSDF-fuse depth maps (metres) from posed frames into a mesh.
 
-    Open3D's ``ScalableTSDFVolume`` is the standard, well-tested volumetric
-    fusion (KinectFusion-style); only pose-convention glue is written here.
+    Uses the same Open3D voxel-block-grid fusion as the RGB-D importer
+    (:class:`reroom.importers.rgbd.TsdfFusion`), so synthetic "scanned" meshes
+    are made exactly the way real captures are.
     """
-    import open3d as o3d
+    from reroom.errors import ReroomError
+    from reroom.importers.rgbd import TsdfFusion
 
-    vol = o3d.pipelines.integration.ScalableTSDFVolume(
-        voxel_length=voxel_size,
-        sdf_trunc=4 * voxel_size,
-        color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor,
-    )
-    cam = o3d.camera.PinholeCameraIntrinsic(
-        intr.width, intr.height, intr.fx, intr.fy, intr.cx - 0.5, intr.cy - 0.5
-    )
+    fusion = TsdfFusion(intr, voxel_size, 4 * voxel_size, depth_trunc)
     gl_to_cv = np.diag([1.0, -1.0, -1.0, 1.0])
+    grey = np.zeros((intr.height, intr.width, 3), np.uint8)
     for i, (depth, frame) in enumerate(zip(depths, frames, strict=True)):
-        d = o3d.geometry.Image(np.ascontiguousarray(depth.astype(np.float32)))
-        gray = o3d.geometry.Image(np.zeros(depth.shape, np.float32))
-        rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
-            gray, d, depth_scale=1.0, depth_trunc=depth_trunc, convert_rgb_to_intensity=True
-        )
-        extrinsic = np.linalg.inv(frame.c2w @ gl_to_cv)  # world -> OpenCV camera
-        vol.integrate(rgbd, cam, extrinsic)
+        mm = np.clip(np.round(np.nan_to_num(depth) * 1000.0), 0, 65535).astype(np.uint16)
+        fusion.integrate(grey, mm, frame.c2w @ gl_to_cv)
         if progress is not None:
             progress(i + 1, len(frames))
-    om = vol.extract_triangle_mesh()
+    om = fusion.extract_mesh()
     om.remove_degenerate_triangles()
     om.remove_duplicated_triangles()
     om.remove_duplicated_vertices()
     om.remove_unreferenced_vertices()
     mesh = trimesh.Trimesh(np.asarray(om.vertices), np.asarray(om.triangles), process=False)
+    if len(mesh.faces) == 0:
+        raise ReroomError("TSDF fusion of the rendered depth maps produced an empty mesh")
     # Keep the components that carry the room; drop floating specks from depth noise.
     comps = mesh.split(only_watertight=False)
     if len(comps) > 1:
