@@ -24,6 +24,17 @@ if ! have_llvm; then
   fi
 fi
 
+# Open3D (TSDF fusion) links against libusb at import time.
+if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "setup: installing libusb-1.0-0 (needed to import Open3D)" >&2
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0) >&2 \
+      || echo "setup: WARNING: could not install libusb-1.0-0; Open3D (mesh fusion) will not import" >&2
+  else
+    echo "setup: WARNING: libusb-1.0-0 is missing and we are not root; Open3D will not import" >&2
+  fi
+fi
+
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv" >&2
   "$PY" -m venv .venv

@@ -20,14 +20,18 @@ from reroom.synth.validate import check_consistency
 def furnished(tmp_path_factory) -> Path:
     """A small furnished scan: few frames, enough samples that the truth is tight."""
     out = tmp_path_factory.mktemp("furnished") / "scan"
-    opts = SynthOptions(frames=6, width=64, height=48, spp=256, vertex_spp=256, mesh_spacing=0.12, seed=1)
+    opts = SynthOptions(
+        frames=6, width=64, height=48, spp=256, vertex_spp=256, mesh_spacing=0.12, seed=1
+    )
     return generate_scan("furnished", out, opts)
 
 
 @pytest.fixture(scope="module")
 def box_fused(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("box") / "scan"
-    opts = SynthOptions(frames=8, width=64, height=48, spp=64, vertex_spp=64, mesh="fused", voxel_size=0.05, seed=2)
+    opts = SynthOptions(
+        frames=8, width=64, height=48, spp=64, vertex_spp=64, mesh="fused", voxel_size=0.05, seed=2
+    )
     return generate_scan("box", out, opts)
 
 
@@ -46,7 +50,9 @@ def test_ground_truth_is_complete(furnished: Path) -> None:
     truth = json.loads((gt_dir / "ground_truth.json").read_text())
     assert len(truth["frames"]) == 6
     for f in truth["frames"]:
-        np.testing.assert_allclose(f["scale"], np.multiply(f["exposure"], f["white_balance"]), rtol=1e-9)
+        np.testing.assert_allclose(
+            f["scale"], np.multiply(f["exposure"], f["white_balance"]), rtol=1e-9
+        )
     kinds = {light["type"] for light in truth["lights"]}
     assert kinds == {"area", "line", "point", "window"}
     room = truth["layout"]["rooms"][0]
@@ -56,13 +62,18 @@ def test_ground_truth_is_complete(furnished: Path) -> None:
     scan = load_scan(furnished)
     assert len(gt.vertices) == len(scan.mesh.vertices)
     attrs = gt.vertex_attributes
-    assert set(np.unique(attrs["label"])) >= {LABELS[k] for k in ("wall", "floor", "ceiling", "door", "window", "baseboard", "furniture", "light")}
+    assert set(np.unique(attrs["label"])) >= {
+        LABELS[k]
+        for k in ("wall", "floor", "ceiling", "door", "window", "baseboard", "furniture", "light")
+    }
     assert np.all(np.isfinite(attrs["radiance"])) and np.all(attrs["radiance"] >= 0)
     assert np.all((attrs["albedo"] >= 0) & (attrs["albedo"] <= 1))
     # Emitting panels are far brighter than the walls they light.
     light = attrs["label"] == LABELS["light"]
     wall = attrs["label"] == LABELS["wall"]
-    assert np.median(attrs["radiance"][light].max(1)) > 20 * np.median(attrs["radiance"][wall].mean(1))
+    assert np.median(attrs["radiance"][light].max(1)) > 20 * np.median(
+        attrs["radiance"][wall].mean(1)
+    )
     # the wood floor texture varies; painted walls are uniform
     assert np.ptp(attrs["albedo"][attrs["label"] == LABELS["floor"], 0]) > 0.05
     assert np.ptp(attrs["albedo"][wall, 0]) == 0
@@ -111,7 +122,16 @@ def test_fused_mesh_is_scanner_like(box_fused: Path) -> None:
 
 
 def test_corrupted_mesh_has_holes_and_noise(tmp_path: Path) -> None:
-    opts = SynthOptions(frames=2, width=32, height=24, spp=4, vertex_spp=4, mesh="corrupted", seed=3, camera=CameraModel(noise=False))
+    opts = SynthOptions(
+        frames=2,
+        width=32,
+        height=24,
+        spp=4,
+        vertex_spp=4,
+        mesh="corrupted",
+        seed=3,
+        camera=CameraModel(noise=False),
+    )
     out = generate_scan("box", tmp_path / "scan", opts)
     scan = load_scan(out)
     gt = read_ply(out / "ground_truth" / "vertices.ply").vertex_attributes
@@ -120,17 +140,26 @@ def test_corrupted_mesh_has_holes_and_noise(tmp_path: Path) -> None:
 
 
 def test_lights_can_be_switched_off(tmp_path: Path) -> None:
-    opts = SynthOptions(frames=2, width=32, height=24, spp=8, vertex_spp=8, lights=["ceiling_panel"])
+    opts = SynthOptions(
+        frames=2, width=32, height=24, spp=8, vertex_spp=8, lights=["ceiling_panel"]
+    )
     out = generate_scan("box", tmp_path / "scan", opts)
     scene = json.loads((out / "ground_truth" / "scene" / "scene.json").read_text())
-    assert {light["name"]: light["on"] for light in scene["lights"]} == {"ceiling_panel": True, "window0": False}
+    assert {light["name"]: light["on"] for light in scene["lights"]} == {
+        "ceiling_panel": True,
+        "window0": False,
+    }
 
 
 def test_bad_options_are_reported(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="unknown preset 'castle'"):
         generate_scan("castle", tmp_path / "a")
     with pytest.raises(ValueError, match=r"no light\(s\) \['sun'\]"):
-        generate_scan("box", tmp_path / "b", SynthOptions(frames=1, width=16, height=16, spp=1, lights=["sun"]))
+        generate_scan(
+            "box",
+            tmp_path / "b",
+            SynthOptions(frames=1, width=16, height=16, spp=1, lights=["sun"]),
+        )
     (tmp_path / "c").mkdir()
     (tmp_path / "c" / "x.txt").write_text("keep me")
     with pytest.raises(ValueError, match="not empty"):

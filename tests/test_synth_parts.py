@@ -12,7 +12,10 @@ from reroom.synth.presets import PRESETS, build_preset
 from reroom.synth.room import Opening, RoomSpec, build_room, point_in_polygon, polygon_area
 from reroom.synth.trajectory import walk_and_look
 
-MAT = {k: {"type": "diffuse", "albedo": [0.5] * 3} for k in "wall floor ceiling door baseboard window".split()}
+MAT = {
+    k: {"type": "diffuse", "albedo": [0.5] * 3}
+    for k in "wall floor ceiling door baseboard window".split()
+}
 
 
 def _mesh(p: Piece) -> trimesh.Trimesh:
@@ -29,7 +32,11 @@ def test_grid_rect_with_hole_has_exact_area_and_spacing() -> None:
 
 @pytest.mark.parametrize(
     "piece",
-    [box([0, 0, 0], [1, 2, 0.5], 0.1), cylinder([0, 0, 0], [0, 0, 1], 0.1), frustum_shell([0, 0, 1], 0.2, 0.12, 0.25, 0.005)],
+    [
+        box([0, 0, 0], [1, 2, 0.5], 0.1),
+        cylinder([0, 0, 0], [0, 0, 1], 0.1),
+        frustum_shell([0, 0, 1], 0.2, 0.12, 0.25, 0.005),
+    ],
 )
 def test_closed_primitives_are_watertight_with_outward_normals(piece: Piece) -> None:
     m = _mesh(piece)
@@ -41,7 +48,10 @@ def test_closed_primitives_are_watertight_with_outward_normals(piece: Piece) -> 
 def test_room_walls_face_inward_and_openings_are_cut() -> None:
     room = RoomSpec(
         np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
-        openings=[Opening("window", 0, 1.5, 3.0, 0.9, 2.1), Opening("door", 2, 1.0, 1.9, 0.0, 2.05, 0.03)],
+        openings=[
+            Opening("window", 0, 1.5, 3.0, 0.9, 2.1),
+            Opening("door", 2, 1.0, 1.9, 0.0, 2.05, 0.03),
+        ],
     )
     parts, portals = build_room(room, 0.1, MAT)
     by = {p.name.split("/")[1]: p for p in parts}
@@ -140,7 +150,10 @@ def test_noise_is_signal_dependent_and_seeded() -> None:
 def test_opening_reveals_face_into_the_opening() -> None:
     room = RoomSpec(
         np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
-        openings=[Opening("window", 0, 1.5, 3.0, 0.9, 2.1, 0.2), Opening("passage", 1, 1.0, 2.0, 0.0, 2.1, 0.15)],
+        openings=[
+            Opening("window", 0, 1.5, 3.0, 0.9, 2.1, 0.2),
+            Opening("passage", 1, 1.0, 2.0, 0.0, 2.1, 0.15),
+        ],
     )
     parts, _ = build_room(room, 0.1, MAT)
     centres = {"window": np.array([2.25, -0.1, 1.5]), "passage": np.array([5.075, 1.5, 1.05])}

@@ -21,9 +21,6 @@ import trimesh
 from reroom.io.images import write_rgb8
 from reroom.scan.camera import Intrinsics, look_at
 
-#: Mitsuba's camera looks down +z with +y up (x to the left); reroom's (OpenGL) down -z.
-_GL_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
-
 
 def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
@@ -62,6 +59,7 @@ def render_mesh_image(
     ``"headlight"`` or ``"ambient"`` (see the module notes).
     """
     from reroom.render import mitsuba
+    from reroom.render.camera import perspective_sensor
 
     if shading not in ("headlight", "ambient"):
         raise ValueError(f"shading must be 'headlight' or 'ambient', got {shading!r}")
@@ -96,7 +94,6 @@ def render_mesh_image(
     shape.add_attribute("vertex_color", 3, mi.Float(colors.ravel()))
 
     k = intrinsics
-    to_world = np.asarray(c2w, dtype=np.float64) @ _GL_TO_MITSUBA
     scene = mi.load_dict(
         {
             "type": "scene",
@@ -112,27 +109,9 @@ def render_mesh_image(
                 )
                 | {"hide_emitters": True},
             },
-            "sensor": {
-                "type": "perspective",
-                "fov_axis": "y",
-                "fov": float(k.fov_y_deg),
-                # Mitsuba's principal-point offsets are film fractions with the
-                # opposite sign of pixel coordinates (checked by the tests: a
-                # point lands where Frame.project puts it).
-                "principal_point_offset_x": float((k.width / 2.0 - k.cx) / k.width),
-                "principal_point_offset_y": float((k.height / 2.0 - k.cy) / k.height),
-                "near_clip": 0.01,
-                "far_clip": 1000.0,
-                "to_world": mi.ScalarTransform4f(to_world.tolist()),
-                "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
-                "film": {
-                    "type": "hdrfilm",
-                    "width": int(k.width),
-                    "height": int(k.height),
-                    "rfilter": {"type": "gaussian"},
-                    "pixel_format": "rgba",
-                },
-            },
+            "sensor": perspective_sensor(
+                c2w, k, spp, seed, sampler="independent", rfilter="gaussian", pixel_format="rgba"
+            ),
             "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
             "room": shape,
         }

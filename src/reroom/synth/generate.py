@@ -79,7 +79,14 @@ def _prepare_out_dir(out: Path, overwrite: bool) -> None:
         raise ValueError(f"{out}: folder is not empty (pass --overwrite to replace the scan in it)")
     # transforms.json goes first, so an interrupted run never leaves a folder that
     # looks like a whole scan.
-    for name in ("transforms.json", "images", "depth", "ground_truth", "mesh.ply", "contact_sheet.png"):
+    for name in (
+        "transforms.json",
+        "images",
+        "depth",
+        "ground_truth",
+        "mesh.ply",
+        "contact_sheet.png",
+    ):
         p = out / name
         if p.is_dir():
             shutil.rmtree(p)

@@ -44,7 +44,9 @@ def approximate_power(light: dict, scene_dir: Path) -> float:
     if kind == "line":
         length = float(np.linalg.norm(np.subtract(light["p1"], light["p0"])))
         # Baffles and the housing hide roughly half of the tube.
-        return float(0.5 * np.pi * np.mean(light["radiance"]) * 2 * np.pi * light["radius"] * length)
+        return float(
+            0.5 * np.pi * np.mean(light["radiance"]) * 2 * np.pi * light["radius"] * length
+        )
     if kind == "window":
         from reroom.render.emitters import load_hdri
 

@@ -13,38 +13,8 @@ from typing import Any
 import numpy as np
 
 from reroom.render import mitsuba
+from reroom.render.camera import mitsuba_to_world, perspective_sensor
 from reroom.scan.camera import Intrinsics
-
-#: Mitsuba's perspective camera looks down +z with +y up and +x to the *left*;
-#: the scan format's OpenGL camera looks down -z with +x right. This flips x and z.
-GL_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
-
-
-def sensor_dict(c2w: np.ndarray, intr: Intrinsics, spp: int, seed: int = 0) -> dict[str, Any]:
-    """A Mitsuba ``perspective`` sensor matching a scan frame's pose and pinhole intrinsics.
-
-    Only pinhole geometry is modelled (distortion is ignored); an off-centre
-    principal point is expressed through Mitsuba's principal-point offsets.
-    """
-    mi = mitsuba()
-    return {
-        "type": "perspective",
-        "fov": intr.fov_y_deg,
-        "fov_axis": "y",
-        "principal_point_offset_x": (intr.cx - intr.width / 2.0) / intr.width,
-        "principal_point_offset_y": (intr.cy - intr.height / 2.0) / intr.height,
-        "near_clip": 0.01,
-        "far_clip": 1000.0,
-        "to_world": mi.ScalarTransform4f(np.asarray(c2w, float) @ GL_TO_MITSUBA),
-        "film": {
-            "type": "hdrfilm",
-            "width": intr.width,
-            "height": intr.height,
-            "rfilter": {"type": "box"},
-            "pixel_format": "rgb",
-        },
-        "sampler": {"type": "multijitter", "sample_count": spp, "seed": seed},
-    }
 
 
 class FrameRenderer:
@@ -60,7 +30,7 @@ class FrameRenderer:
         self.intr = intr
         self.spp = spp
         d = dict(scene_dict)
-        d["sensor"] = sensor_dict(np.eye(4), intr, spp)
+        d["sensor"] = perspective_sensor(np.eye(4), intr, spp)
         self.scene = mi.load_dict(d, optimize=False)
         self.params = mi.traverse(self.scene)
         if "sensor.to_world" not in self.params:
@@ -69,9 +39,7 @@ class FrameRenderer:
     def render(self, c2w: np.ndarray, seed: int) -> np.ndarray:
         """Linear RGB radiance ``(H, W, 3)`` float32 for camera pose ``c2w`` (OpenGL axes)."""
         mi = self.mi
-        self.params["sensor.to_world"] = mi.ScalarTransform4f(
-            np.asarray(c2w, float) @ GL_TO_MITSUBA
-        )
+        self.params["sensor.to_world"] = mitsuba_to_world(c2w)
         self.params.update()
         img = mi.render(self.scene, spp=self.spp, seed=seed)
         return np.asarray(img, dtype=np.float32)[..., :3]

@@ -76,7 +76,9 @@ def predict_and_observe(
     for frame in frames:
         uv, _, inside = frame.project(verts[idx_all])
         k = frame.intrinsics
-        inside &= (uv[:, 0] >= 2) & (uv[:, 0] < k.width - 2) & (uv[:, 1] >= 2) & (uv[:, 1] < k.height - 2)
+        inside &= (
+            (uv[:, 0] >= 2) & (uv[:, 0] < k.width - 2) & (uv[:, 1] >= 2) & (uv[:, 1] < k.height - 2)
+        )
         idx = idx_all[inside]
         if len(idx) == 0:
             continue
@@ -89,13 +91,18 @@ def predict_and_observe(
         img = frame.load_image().astype(np.int32)
         o, d = frame.pixel_rays()
         hits = caster.intersect(o, d)
-        part_img = np.where(hits.hit, face_part[np.maximum(hits.face, 0)], -1).reshape(k.height, k.width)
+        part_img = np.where(hits.hit, face_part[np.maximum(hits.face, 0)], -1).reshape(
+            k.height, k.width
+        )
         uvi, _, _ = frame.project(verts[idx])
         col = np.floor(uvi[:, 0]).astype(int)
         row = np.floor(uvi[:, 1]).astype(int)
         offsets = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)]
         patch = np.stack([img[row + dr, col + dc] for dr, dc in offsets], 1)
-        same_part = np.all(np.stack([part_img[row + dr, col + dc] for dr, dc in offsets], 1) == part[idx][:, None], axis=1)
+        same_part = np.all(
+            np.stack([part_img[row + dr, col + dc] for dr, dc in offsets], 1) == part[idx][:, None],
+            axis=1,
+        )
         smooth = same_part & ((patch.max(1) - patch.min(1)).max(1) <= smooth_tol)
         obs = img[row, col]
         scale = np.asarray(truth["frames"][frame.index]["scale"], float)
@@ -123,7 +130,9 @@ def check_consistency(scan_dir: str | Path, **kwargs) -> ConsistencyReport:
         # of them read low; the ratio of means is the unbiased comparison.
         ratio_of_means=float(lin_o.mean() / lin_p.mean()) if obs.size else float("nan"),
         median_ratio=float(np.median(ratio)) if obs.size else float("nan"),
-        median_abs_log_ratio=float(np.median(np.abs(np.log(np.maximum(ratio, 1e-6))))) if obs.size else float("nan"),
+        median_abs_log_ratio=float(np.median(np.abs(np.log(np.maximum(ratio, 1e-6)))))
+        if obs.size
+        else float("nan"),
         median_abs_level_diff=float(np.median(diff)) if obs.size else float("nan"),
         p90_abs_level_diff=float(np.percentile(diff, 90)) if obs.size else float("nan"),
         frames_used=len(scan.frames),

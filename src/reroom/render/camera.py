@@ -1,0 +1,56 @@
+"""Mitsuba sensors that match a scan frame's camera exactly."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from reroom.render.mitsuba_env import mitsuba
+from reroom.scan.camera import Intrinsics
+
+#: Mitsuba's perspective camera looks down +z with +y up and +x to the *left*;
+#: the scan format's OpenGL camera looks down -z with +x right. This flips x and z.
+GL_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
+
+
+def mitsuba_to_world(c2w: np.ndarray) -> Any:
+    """Mitsuba ``to_world`` transform of a camera given as an OpenGL-axes ``c2w``."""
+    mi = mitsuba()
+    return mi.ScalarTransform4f((np.asarray(c2w, dtype=np.float64) @ GL_TO_MITSUBA).tolist())
+
+
+def perspective_sensor(
+    c2w: np.ndarray,
+    intr: Intrinsics,
+    spp: int,
+    seed: int = 0,
+    sampler: str = "multijitter",
+    rfilter: str = "box",
+    pixel_format: str = "rgb",
+) -> dict[str, Any]:
+    """A ``perspective`` sensor dict with a frame's pose, field of view and principal point.
+
+    Lens distortion is not modelled (Mitsuba's perspective camera is a
+    pinhole). Mitsuba's principal-point offsets are fractions of the film with
+    the opposite sign of pixel coordinates; the tests check that a world point
+    lands on the pixel :meth:`reroom.scan.Frame.project` gives.
+    """
+    return {
+        "type": "perspective",
+        "fov": float(intr.fov_y_deg),
+        "fov_axis": "y",
+        "principal_point_offset_x": float((intr.width / 2.0 - intr.cx) / intr.width),
+        "principal_point_offset_y": float((intr.height / 2.0 - intr.cy) / intr.height),
+        "near_clip": 0.01,
+        "far_clip": 1000.0,
+        "to_world": mitsuba_to_world(c2w),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(intr.width),
+            "height": int(intr.height),
+            "rfilter": {"type": rfilter},
+            "pixel_format": pixel_format,
+        },
+        "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(seed)},
+    }
