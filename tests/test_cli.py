@@ -1,0 +1,51 @@
+"""The command-line tool: every command has --help, runs, and reports bad input in one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from reroom.cli import app
+
+runner = CliRunner()
+
+
+@pytest.mark.parametrize("command", [[], ["doctor"], ["synth"], ["info"], ["sheet"], ["import-rgbd"], ["demo"]])
+def test_help(command: list[str]) -> None:
+    result = runner.invoke(app, [*command, "--help"])
+    assert result.exit_code == 0, result.output
+    assert "Usage" in result.output
+
+
+def test_synth_info_and_sheet(tmp_path: Path) -> None:
+    out = tmp_path / "scan"
+    args = ["synth", "box", "--out", str(out), "--frames", "3", "--width", "32", "--height", "24", "--spp", "2", "--vertex-spp", "2"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert (out / "transforms.json").is_file()
+    assert (out / "contact_sheet.png").is_file()
+    again = runner.invoke(app, args)
+    assert again.exit_code == 1 and "not empty" in again.output
+    assert runner.invoke(app, [*args, "--overwrite"]).exit_code == 0
+    info = runner.invoke(app, ["info", str(out)])
+    assert info.exit_code == 0, info.output
+    assert "frames" in info.output and "32 x 24" in info.output
+    sheet = runner.invoke(app, ["sheet", str(out), "--out", str(tmp_path / "s.png")])
+    assert sheet.exit_code == 0 and (tmp_path / "s.png").is_file()
+
+
+def test_errors_are_one_line_not_tracebacks(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["info", str(tmp_path / "missing")])
+    assert result.exit_code == 1
+    assert "error:" in result.output and "does not exist" in result.output
+    assert "Traceback" not in result.output
+    result = runner.invoke(app, ["synth", "castle", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 1 and "unknown preset 'castle'" in result.output
+
+
+def test_doctor_reports_the_variant() -> None:
+    result = runner.invoke(app, ["doctor"])
+    assert result.exit_code == 0, result.output
+    assert "mitsuba variant" in result.output and "ray engine" in result.output
