@@ -57,7 +57,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("--large", action="store_true", help="also run a 300-frame 640x360 scan")
-    ap.add_argument("--large-spp", type=int, default=8)
+    ap.add_argument("--large-spp", type=int, default=4)
     ap.add_argument("--large-frames", type=int, default=300)
     ap.add_argument("--mesh", default="clean", choices=("clean", "corrupted", "fused"))
     args = ap.parse_args()
@@ -66,10 +66,11 @@ def main() -> None:
     rows = [
         run(
             "furnished",
-            SynthOptions(frames=24, width=160, height=120, spp=64, vertex_spp=128, mesh=args.mesh),
-            f"furnished 24 x 160x120 @64spp, {args.mesh} mesh",
+            SynthOptions(frames=24, width=160, height=120, spp=spp, vertex_spp=256, mesh=args.mesh),
+            f"furnished 24 x 160x120 @{spp}spp, {args.mesh} mesh",
             60.0,
         )
+        for spp in (16, 64)
     ]
     if args.large:
         rows.append(
@@ -80,7 +81,7 @@ def main() -> None:
                     width=640,
                     height=360,
                     spp=args.large_spp,
-                    vertex_spp=128,
+                    vertex_spp=256,
                     mesh=args.mesh,
                 ),
                 f"furnished {args.large_frames} x 640x360 @{args.large_spp}spp, {args.mesh} mesh",

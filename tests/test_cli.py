@@ -12,7 +12,9 @@ from reroom.cli import app
 runner = CliRunner()
 
 
-@pytest.mark.parametrize("command", [[], ["doctor"], ["synth"], ["info"], ["sheet"], ["import-rgbd"], ["demo"]])
+@pytest.mark.parametrize(
+    "command", [[], ["doctor"], ["synth"], ["info"], ["sheet"], ["import-rgbd"], ["demo"]]
+)
 def test_help(command: list[str]) -> None:
     result = runner.invoke(app, [*command, "--help"])
     assert result.exit_code == 0, result.output
@@ -21,7 +23,22 @@ def test_help(command: list[str]) -> None:
 
 def test_synth_info_and_sheet(tmp_path: Path) -> None:
     out = tmp_path / "scan"
-    args = ["synth", "box", "--out", str(out), "--frames", "3", "--width", "32", "--height", "24", "--spp", "2", "--vertex-spp", "2"]
+    args = [
+        "synth",
+        "box",
+        "--out",
+        str(out),
+        "--frames",
+        "3",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--spp",
+        "2",
+        "--vertex-spp",
+        "2",
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert (out / "transforms.json").is_file()
@@ -49,3 +66,24 @@ def test_doctor_reports_the_variant() -> None:
     result = runner.invoke(app, ["doctor"])
     assert result.exit_code == 0, result.output
     assert "mitsuba variant" in result.output and "ray engine" in result.output
+
+
+SLAMBOOK = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "slambook2_rgbd"
+
+
+@pytest.mark.skipif(not (SLAMBOOK / "pose.txt").is_file(), reason="slambook2 frames not found")
+def test_import_rgbd_command(tmp_path: Path) -> None:
+    out = tmp_path / "slam"
+    result = runner.invoke(
+        app, ["import-rgbd", str(SLAMBOOK), "--out", str(out), "--voxel-size", "0.04"]
+    )
+    assert result.exit_code == 0, result.output
+    info = runner.invoke(app, ["info", str(out)])
+    assert info.exit_code == 0 and "640 x 480" in info.output
+
+
+def test_import_rgbd_reports_a_missing_folder(tmp_path: Path) -> None:
+    result = runner.invoke(
+        app, ["import-rgbd", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]
+    )
+    assert result.exit_code == 1 and "error:" in result.output

@@ -288,3 +288,12 @@ def test_ply_attributes_round_trip(tmp_path: Path) -> None:
     np.testing.assert_allclose(back.vertex_attributes["radiance"], rad, rtol=1e-6)
     assert back.vertex_attributes["observed"].dtype == np.uint8
     np.testing.assert_array_equal(back.vertex_attributes["label"], np.arange(n))
+
+
+def test_sampler_choice() -> None:
+    from reroom.render.camera import is_power_of_four, perspective_sensor
+
+    assert [n for n in range(1, 300) if is_power_of_four(n)] == [1, 4, 16, 64, 256]
+    intr = Intrinsics.from_fov(32, 24, 60)
+    assert perspective_sensor(np.eye(4), intr, 64)["sampler"]["type"] == "ldsampler"
+    assert perspective_sensor(np.eye(4), intr, 32)["sampler"]["type"] == "independent"

@@ -87,10 +87,15 @@ def synth(
     width: Annotated[int, typer.Option(help="Frame width in pixels.")] = 160,
     height: Annotated[int, typer.Option(help="Frame height in pixels.")] = 120,
     fov: Annotated[float, typer.Option(help="Vertical field of view, degrees.")] = 60.0,
-    spp: Annotated[int, typer.Option(help="Path-tracing samples per pixel.")] = 64,
+    spp: Annotated[
+        int,
+        typer.Option(
+            help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler)."
+        ),
+    ] = 16,
     vertex_spp: Annotated[
         int, typer.Option(help="Samples per vertex for the true radiance.")
-    ] = 128,
+    ] = 256,
     seed: Annotated[int, typer.Option(help="Random seed (trajectory, noise, sampling).")] = 0,
     hdri: Annotated[
         str, typer.Option(help="Outdoor HDRI behind the windows: a shipped name or an .exr.")
@@ -219,7 +224,7 @@ def demo(
         height=120,
         fov=60.0,
         spp=64,
-        vertex_spp=128,
+        vertex_spp=256,
         seed=0,
         hdri="courtyard",
         lights=None,

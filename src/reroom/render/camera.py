@@ -20,22 +20,33 @@ def mitsuba_to_world(c2w: np.ndarray) -> Any:
     return mi.ScalarTransform4f((np.asarray(c2w, dtype=np.float64) @ GL_TO_MITSUBA).tolist())
 
 
+def is_power_of_four(n: int) -> bool:
+    """True for 1, 4, 16, 64, 256, ... (the sample counts Mitsuba's ``ldsampler`` takes as is)."""
+    return n > 0 and n & (n - 1) == 0 and (n.bit_length() - 1) % 2 == 0
+
+
 def perspective_sensor(
     c2w: np.ndarray,
     intr: Intrinsics,
     spp: int,
     seed: int = 0,
-    sampler: str = "multijitter",
+    sampler: str | None = None,
     rfilter: str = "box",
     pixel_format: str = "rgb",
 ) -> dict[str, Any]:
     """A ``perspective`` sensor dict with a frame's pose, field of view and principal point.
 
+    The default sampler is Mitsuba's low-discrepancy ``ldsampler`` when ``spp`` is
+    a power of four (what it requires): in the furnished room it reaches a given
+    noise level about 1.8x faster than ``independent`` (measured, see
+    docs/benchmarks.md). Other sample counts use ``independent``.
     Lens distortion is not modelled (Mitsuba's perspective camera is a
     pinhole). Mitsuba's principal-point offsets are fractions of the film with
     the opposite sign of pixel coordinates; the tests check that a world point
     lands on the pixel :meth:`reroom.scan.Frame.project` gives.
     """
+    if sampler is None:
+        sampler = "ldsampler" if is_power_of_four(spp) else "independent"
     return {
         "type": "perspective",
         "fov": float(intr.fov_y_deg),
