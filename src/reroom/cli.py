@@ -92,7 +92,7 @@ def synth(
         typer.Option(
             help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler)."
         ),
-    ] = 16,
+    ] = 64,
     vertex_spp: Annotated[
         int, typer.Option(help="Samples per vertex for the true radiance.")
     ] = 256,

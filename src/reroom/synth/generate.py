@@ -42,7 +42,7 @@ class SynthOptions:
     width: int = 160
     height: int = 120
     fov_y_deg: float = 60.0
-    spp: int = 16
+    spp: int = 64
     vertex_spp: int = 256
     max_depth: int = -1
     seed: int = 0

@@ -96,7 +96,7 @@ def fuse_depth_maps(
     are made exactly the way real captures are.
     """
     from reroom.errors import ReroomError
-    from reroom.importers.rgbd import TsdfFusion
+    from reroom.importers.fusion import TsdfFusion
 
     fusion = TsdfFusion(intr, voxel_size, 4 * voxel_size, depth_trunc)
     gl_to_cv = np.diag([1.0, -1.0, -1.0, 1.0])
