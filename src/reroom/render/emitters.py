@@ -439,8 +439,12 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
     if not mi.is_rgb or mi.variant().startswith("scalar"):
         # Python plugins run once per vectorised call in JIT variants, but once per
         # ray in scalar ones, and the table/HDRI code below assumes JIT arrays.
-        raise RuntimeError(
-            f"reroom emitters need a JIT RGB variant (llvm_ad_rgb, cuda_ad_rgb), not {mi.variant()}"
+        from reroom.errors import ReroomError
+
+        raise ReroomError(
+            "windows and goniometric point lights are rendered by Python-defined Mitsuba "
+            f"emitters, which need the llvm_ad_rgb variant, not {mi.variant()}: install LLVM >= 17 "
+            "(`apt-get install libllvm19`, which scripts/setup.sh does when run as root)"
         )
 
     inv_pi = 1.0 / math.pi
