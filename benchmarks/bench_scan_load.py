@@ -39,7 +39,9 @@ def main() -> None:
         ]
         # Smooth frames keep PNG encoding quick; load_scan reads headers only either way.
         yy, xx = np.mgrid[0:360, 0:640]
-        base = np.stack([xx * 255 // 639, yy * 255 // 359, (xx + yy) * 255 // 998], -1).astype(np.uint8)
+        base = np.stack([xx * 255 // 639, yy * 255 // 359, (xx + yy) * 255 // 998], -1).astype(
+            np.uint8
+        )
         base = base + rng.integers(0, 2, base.shape, dtype=np.uint8)
         t = time.perf_counter()
         write_scan(root, mesh, intr, poses, (np.roll(base, i, axis=1) for i in range(args.frames)))

@@ -9,8 +9,12 @@ ROOT=$(pwd)
 PY=${PYTHON:-python3}
 
 have_llvm() {
-  ls /usr/lib/*/libLLVM-1[7-9].so* /usr/lib/*/libLLVM-2[0-9].so* /usr/lib/*/libLLVM.so.1[7-9]* \
-     /usr/lib/*/libLLVM.so.2[0-9]* /usr/lib/llvm-1[7-9]/lib/libLLVM*.so* 2>/dev/null | grep -q .
+  local f
+  for f in /usr/lib/*/libLLVM-1[7-9].so* /usr/lib/*/libLLVM-2[0-9].so* /usr/lib/*/libLLVM.so.1[7-9]* \
+           /usr/lib/*/libLLVM.so.2[0-9]* /usr/lib/llvm-1[7-9]/lib/libLLVM*.so*; do
+    [ -e "$f" ] && return 0
+  done
+  return 1
 }
 
 if ! have_llvm; then
