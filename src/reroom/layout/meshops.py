@@ -1,0 +1,119 @@
+"""Mesh helpers the layout stage needs: normals, resolution, adjacency, graph morphology.
+
+All functions take plain arrays (``vertices (V, 3)``, ``faces (F, 3)``) so they work on
+any mesh, including ones built in tests.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` cross products of the face edges: normal times twice the area."""
+    tri = vertices[faces]
+    return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(V, 3)`` area-weighted unit vertex normals (zero for isolated vertices)."""
+    fc = face_cross(vertices, faces)
+    n = len(vertices)
+    idx = faces.ravel()
+    # bincount is ~20x faster than np.add.at for scattering face normals to vertices.
+    acc = np.stack(
+        [np.bincount(idx, weights=np.repeat(fc[:, c], 3), minlength=n) for c in range(3)], axis=1
+    )
+    length = np.linalg.norm(acc, axis=1, keepdims=True)
+    return np.divide(acc, length, out=np.zeros_like(acc), where=length > 0)
+
+
+def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(V,)`` one third of the area of the faces around each vertex (its share of surface)."""
+    area = 0.5 * np.linalg.norm(face_cross(vertices, faces), axis=1)
+    return np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
+
+
+def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The mesh resolution ``r`` of the thesis: the mean edge length.
+
+    Averaged over the three edges of every face, so an interior edge counts twice and a
+    boundary edge once; on a scan mesh this differs from the mean over unique edges by
+    well under 1 % and avoids a costly de-duplication.
+    """
+    f = np.asarray(faces, np.int64)
+    if len(f) == 0:
+        return 0.0
+    v = np.asarray(vertices, np.float64)
+    tri = v[f]
+    e = np.concatenate([tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2]])
+    return float(np.sqrt(np.einsum("ij,ij->i", e, e)).mean())
+
+
+def vertex_adjacency(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """Symmetric ``(V, V)`` boolean adjacency of vertices sharing an edge (no self loops)."""
+    i = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])
+    j = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
+    a = sp.coo_matrix((np.ones(len(i), bool), (i, j)), shape=(n_vertices, n_vertices)).tocsr()
+    a = (a + a.T).tocsr()
+    a.setdiag(False)
+    a.eliminate_zeros()
+    return a
+
+
+def dilate(mask: np.ndarray, adjacency: sp.csr_matrix, steps: int = 1) -> np.ndarray:
+    """Graph dilation: a vertex joins the mask if any neighbour is in it (``steps`` times)."""
+    out = np.asarray(mask, bool).copy()
+    for _ in range(steps):
+        out |= (adjacency @ out.astype(np.uint8)) > 0
+    return out
+
+
+def erode(mask: np.ndarray, adjacency: sp.csr_matrix, steps: int = 1) -> np.ndarray:
+    """Graph erosion: a vertex stays only if every neighbour is in the mask."""
+    return ~dilate(~np.asarray(mask, bool), adjacency, steps)
+
+
+def close_labels(
+    labels: np.ndarray,
+    adjacency: sp.csr_matrix,
+    classes: tuple[int, ...],
+    unlabelled: int,
+    steps: int = 2,
+) -> np.ndarray:
+    """Morphological closing of each class along the mesh, filling only unlabelled vertices.
+
+    Each class in ``classes`` is dilated then eroded by ``steps`` rings; vertices that were
+    ``unlabelled`` and fall inside exactly one closed class take it. Labelled vertices never
+    change, so closing cannot swallow a neighbouring class, and a vertex claimed by two
+    closings (a seam between classes) stays unlabelled.
+    """
+    out = labels.copy()
+    free = labels == unlabelled
+    claims = np.zeros(len(labels), np.int32)
+    new = np.full(len(labels), unlabelled, labels.dtype)
+    for c in classes:
+        closed = erode(dilate(labels == c, adjacency, steps), adjacency, steps)
+        hit = closed & free
+        claims += hit
+        new[hit] = c
+    take = free & (claims == 1)
+    out[take] = new[take]
+    return out
+
+
+def open_labels(
+    labels: np.ndarray,
+    adjacency: sp.csr_matrix,
+    classes: tuple[int, ...],
+    unlabelled: int,
+    steps: int = 1,
+) -> np.ndarray:
+    """Morphological opening of each class: specks thinner than ``2 steps`` rings go unlabelled."""
+    out = labels.copy()
+    for c in classes:
+        m = labels == c
+        opened = dilate(erode(m, adjacency, steps), adjacency, steps) & m
+        out[m & ~opened] = unlabelled
+    return out

@@ -1,0 +1,173 @@
+"""Weighted-median reprojection, the baselines and the seam metric."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reroom.hdr.baselines import frame_to_frame, frame_to_model
+from reroom.hdr.metrics import (
+    SeamSamples,
+    boundary_pairs,
+    boundary_seam,
+    flat_vertices,
+    seam_metric,
+)
+from reroom.hdr.observe import Observations, encode_linear
+from reroom.hdr.reproject import (
+    CONFIDENCE_FLOOR,
+    BestFrame,
+    best_frame_texture,
+    reproject_radiance,
+)
+from reroom.hdr.solve import hat_confidence
+
+LINEAR = np.arange(256) / 255.0
+
+
+def brute_weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values, kind="stable")
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+def test_weighted_median_matches_brute_force():
+    rng = np.random.default_rng(0)
+    nv, nf = 50, 20
+    vi = np.concatenate([np.full(rng.integers(1, 12), v) for v in range(nv)])
+    fj = rng.integers(0, nf, len(vi))
+    # One sample per (vertex, frame): deduplicate.
+    _, uniq = np.unique(vi * nf + fj, return_index=True)
+    vi, fj = vi[uniq], fj[uniq]
+    levels = rng.integers(0, 256, (len(vi), 3)).astype(np.uint8)
+    g = rng.uniform(0.1, 2.0, len(vi)).astype(np.float32)
+    scales = rng.uniform(0.5, 2.0, (nf, 3))
+    scales[3] = np.nan  # a frame without exposure: its samples are left out
+    obs = Observations.from_arrays(nv, nf, vi, fj, levels, g)
+    rad = reproject_radiance(obs, scales)
+    conf = np.maximum(hat_confidence(np.arange(256)), CONFIDENCE_FLOOR)
+    for v in range(nv):
+        sel = (obs.vertex == v) & (obs.frame != 3)
+        assert rad.sample_count[v] == sel.sum()
+        assert rad.observed[v] == (sel.sum() > 0)
+        for c in range(3):
+            if not sel.any():
+                assert rad.radiance[v, c] == 0.0
+                continue
+            vals = obs.linear_values(sel)[:, c] / scales[obs.frame[sel], c]
+            w = conf[obs.value[sel, c]] * obs.geometry[sel]
+            expected = brute_weighted_median(vals, w.astype(np.float64))
+            assert rad.radiance[v, c] == pytest.approx(expected, rel=1e-12)
+    assert np.all(np.isfinite(rad.radiance))
+
+
+def test_unobserved_black_and_saturated_vertices():
+    # vertex 0: never seen; 1: seen black only; 2: saturated only; 3: seen once.
+    vi = np.array([1, 1, 2, 3])
+    fj = np.array([0, 1, 0, 1])
+    levels = np.array([[0, 0, 0], [0, 0, 0], [255, 255, 255], [100, 100, 100]], np.uint8)
+    obs = Observations.from_arrays(4, 2, vi, fj, levels)
+    rad = reproject_radiance(obs, np.array([[1.0] * 3, [2.0] * 3]))
+    assert rad.observed.tolist() == [False, True, True, True]
+    assert rad.sample_count.tolist() == [0, 2, 1, 1]
+    np.testing.assert_allclose(rad.radiance[0], 0.0)
+    np.testing.assert_allclose(rad.radiance[1], 0.0)
+    np.testing.assert_allclose(rad.radiance[2], 1.0)  # a lower bound, but not black
+    np.testing.assert_allclose(rad.radiance[3], 100 / 255 / 2, rtol=1e-4)
+    best = best_frame_texture(obs)
+    assert best.frame.tolist() == [-1, 0, 0, 1]
+    assert best.value[3].tolist() == [100, 100, 100]
+
+
+def test_empty_observations():
+    obs = Observations.from_arrays(3, 2, np.zeros(0), np.zeros(0), np.zeros((0, 3)))
+    rad = reproject_radiance(obs, np.ones((2, 3)))
+    assert not rad.observed.any() and np.all(rad.radiance == 0)
+    assert np.all(best_frame_texture(obs).frame == -1)
+
+
+def strip_observations(t: np.ndarray, b: np.ndarray, window: int = 40, step: int = 10):
+    vi, fj = [], []
+    for j in range(len(t)):
+        vs = np.arange(window) + j * step
+        vi.append(vs[vs < len(b)])
+        fj.append(np.full(len(vi[-1]), j))
+    vi, fj = np.concatenate(vi), np.concatenate(fj)
+    return vi, fj
+
+
+def test_baselines_exact_without_noise():
+    rng = np.random.default_rng(1)
+    nf, nv = 15, 200
+    t = np.exp(rng.normal(0, 0.3, (nf, 3)))
+    t /= t[0]
+    b = rng.uniform(0.2, 0.5, (nv, 3))
+    vi, fj = strip_observations(t, b)
+    x = t[fj] * b[vi]
+    levels = np.round(x / x.max() * 250).astype(np.uint8)
+    obs = Observations.from_arrays(nv, nf, vi, fj, levels)
+    for fn in (frame_to_frame, frame_to_model):
+        s, info = fn(obs)
+        assert s.shape == (nf, 3)
+        np.testing.assert_allclose(s[0], 1.0)
+        # Quantised to 8 bits: within a few per cent of the truth, no NaN.
+        assert np.all(np.isfinite(s))
+        assert np.median(np.abs(s / t - 1)) < 0.03, fn.__name__
+        assert info["carried"] == 0
+
+
+def test_baselines_carry_over_frames_without_overlap():
+    nf, nv = 4, 120
+    t = np.ones((nf, 3))
+    b = np.full((nv, 3), 0.4)
+    vi, fj = strip_observations(t, b, window=30, step=30)  # no overlap at all
+    levels = np.full((len(vi), 3), 100, np.uint8)
+    obs = Observations.from_arrays(nv, nf, vi, fj, levels)
+    for fn in (frame_to_frame, frame_to_model):
+        s, info = fn(obs)
+        np.testing.assert_allclose(s, 1.0)
+        assert info["carried"] == 3
+
+
+def test_boundary_seam_sees_exposure_jumps():
+    # A strip of vertices along x; frame 0 textures the left half, frame 1 the right.
+    n = 40
+    edges = np.stack([np.arange(n - 1), np.arange(1, n)], 1)
+    frame = (np.arange(n) >= n // 2).astype(np.int64)
+    true_scale = np.array([[1.0] * 3, [2.0] * 3])
+    value = np.round(0.2 * true_scale[frame] * 255).astype(np.uint8)
+    best = BestFrame(frame, value, encode_linear(value / 255.0))
+    right = boundary_seam(edges, best, true_scale, LINEAR, min_edges=1)
+    wrong = boundary_seam(edges, best, np.ones((2, 3)), LINEAR, min_edges=1)
+    assert right["seam"] < 1e-4  # 8-bit levels, then 16-bit codes: not exact
+    assert abs(wrong["seam"] - np.log(2)) < 0.02
+    assert wrong["pairs"] == 1 and wrong["edges"] == 1
+    assert boundary_seam(edges, best, true_scale, LINEAR, min_edges=5)["pairs"] == 0
+
+
+def test_seam_metric_over_shared_vertices():
+    """Frame 0 sees vertices 0-29, frame 1 sees 10-39; their territories meet at 20."""
+    n = 40
+    edges = np.stack([np.arange(n - 1), np.arange(1, n)], 1)
+    rng = np.random.default_rng(0)
+    b = rng.uniform(0.1, 0.3, (n, 3))
+    t = np.array([[1.0, 1.0, 1.0], [1.5, 1.6, 1.4]])
+    vi = np.r_[np.arange(0, 30), np.arange(10, 40)]
+    fj = np.r_[np.zeros(30, int), np.ones(30, int)]
+    samples = SeamSamples(vi, fj, encode_linear(t[fj] * b[vi]))
+    best_frame = (np.arange(n) >= 20).astype(np.int64)
+    pairs = boundary_pairs(edges, best_frame, np.ones(n, bool), 2)
+    assert pairs.tolist() == [1]
+    right = seam_metric(samples, pairs, t)
+    assert right["pairs"] == 1 and right["vertices_pairs"] == 20
+    assert right["seam"] < 1e-4
+    wrong = seam_metric(samples, pairs, np.ones((2, 3)))
+    assert abs(wrong["seam"] - np.log(1.5 * 0.2126 + 1.6 * 0.7152 + 1.4 * 0.0722)) < 0.02
+    assert np.isnan(seam_metric(samples, pairs, t, min_gap=2)["seam"])
+    assert np.isnan(seam_metric(samples, pairs, t, min_common=21)["seam"])
+
+
+def test_flat_vertices():
+    normals = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 1.0, 0], [0, 0, 1.0], [0, 0, 0]])
+    edges = np.array([[0, 1], [1, 2], [3, 4]])
+    assert flat_vertices(edges, normals).tolist() == [True, False, False, False, False]

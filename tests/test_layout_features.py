@@ -1,0 +1,325 @@
+"""Layout, feature half: wall evidence, baseboard, doors, windows, labels, empty room, evaluation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.layout import features as ft
+from reroom.layout.emptyroom import PORTAL, empty_room_mesh, room_shell
+from reroom.layout.evaluate import evaluate_layout, floorplan_iou
+from reroom.layout.labels import CEILING, FLOOR, OTHER, WALL, clean_labels, shell_labels
+from reroom.layout.meshops import vertex_adjacency, vertex_normals
+from reroom.layout.wallgrid import (
+    WallGrids,
+    accumulate_frames,
+    oriented_edges,
+    vanishing_points,
+)
+from reroom.rays import RayCaster
+from reroom.scan import Frame, Intrinsics, look_at
+from reroom.synth.geometry import Piece
+from reroom.synth.presets import MATERIALS
+from reroom.synth.room import Opening, RoomSpec, build_room, room_layout
+
+WALL0 = {"start": [0.0, 0.0], "end": [5.0, 0.0], "inward_normal": [0.0, 1.0], "length": 5.0}
+
+
+def grids_one_wall(cell: float = 0.05) -> WallGrids:
+    return WallGrids.empty([WALL0], cell, 0.0, 2.5)
+
+
+def rect_cells(g: WallGrids, s0: float, s1: float, z0: float, z1: float) -> tuple[slice, slice]:
+    c = g.cell
+    return slice(int(round(s0 / c)), int(round(s1 / c))), slice(
+        int(round(z0 / c)), int(round(z1 / c))
+    )
+
+
+# ----------------------------------------------------------------------------- holes, doors
+
+
+def test_window_and_passage_from_see_through_rays():
+    g = grids_one_wall()
+    g.surface[0][:] = 10
+    win = rect_cells(g, 1.0, 2.2, 0.9, 2.0)
+    g.surface[0][win] = 0
+    g.through[0][win] = 8
+    door = rect_cells(g, 3.5, 4.4, 0.0, 2.1)
+    g.surface[0][door] = 1
+    g.through[0][door] = 9
+    found = sorted(ft.find_holes(g, 0), key=lambda o: o.s0)
+    assert [o.kind for o in found] == ["window", "passage"]
+    w, p = found
+    assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((1.0, 2.2, 0.9, 2.0), abs=1e-9)
+    assert (p.s0, p.s1, p.z1) == pytest.approx((3.5, 4.4, 2.1), abs=1e-9)
+
+
+def test_small_holes_and_floor_level_holes_are_not_windows():
+    g = grids_one_wall()
+    g.surface[0][:] = 10
+    g.surface[0][rect_cells(g, 1.0, 1.15, 1.0, 1.15)] = 0
+    g.through[0][rect_cells(g, 1.0, 1.15, 1.0, 1.15)] = 5  # 15 cm: a crack, not a window
+    g.surface[0][rect_cells(g, 3.0, 4.0, 0.0, 0.8)] = 0
+    g.through[0][rect_cells(g, 3.0, 4.0, 0.0, 0.8)] = 5  # behind a sofa, not door-high
+    assert ft.find_holes(g, 0) == []
+
+
+def test_bright_vertices_make_a_window_without_holes():
+    g = grids_one_wall()
+    g.surface[0][:] = 10
+    g.bright[0][rect_cells(g, 2.0, 3.0, 1.0, 2.0)] = 3
+    (w,) = ft.find_holes(g, 0)
+    assert w.kind == "window" and w.source == "bright"
+    assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((2.0, 3.0, 1.0, 2.0), abs=1e-9)
+
+
+def _edge_wall(noise: float = 0.02, seed: int = 0) -> WallGrids:
+    g = grids_one_wall(0.02)
+    rng = np.random.default_rng(seed)
+    g.n[0][:] = 4
+    g.fv[0][:] = 4 * noise * rng.random(g.n[0].shape)
+    g.fh[0][:] = 4 * noise * rng.random(g.n[0].shape)
+    return g
+
+
+def test_door_from_two_jambs_and_a_head():
+    g = _edge_wall()
+    c = g.cell
+    for s in (1.0, 1.9):
+        g.fv[0][int(s / c), : int(2.05 / c)] = 4 * 0.2
+    g.fh[0][int(1.0 / c) : int(1.9 / c), int(2.05 / c)] = 4 * 0.2
+    # A tall vertical edge elsewhere (a shadow) with no head does not make a door.
+    g.fv[0][int(4.0 / c), : int(2.4 / c)] = 4 * 0.2
+    (d,) = ft.find_doors(g, 0)
+    assert (d.s0, d.s1, d.z1) == pytest.approx((1.01, 1.91, 2.05), abs=0.03)
+
+
+def test_door_with_one_weak_jamb():
+    g = _edge_wall()
+    c = g.cell
+    g.fv[0][int(1.0 / c), : int(2.05 / c)] = 4 * 0.2
+    g.fv[0][int(1.9 / c), : int(2.05 / c)] = 4 * 0.045  # barely above the wall
+    g.fh[0][int(1.0 / c) : int(1.9 / c), int(2.05 / c)] = 4 * 0.2
+    (d,) = ft.find_doors(g, 0)
+    assert (d.s0, d.s1) == pytest.approx((1.0, 1.9), abs=0.05)
+
+
+def test_recessed_door_from_shallow_rays():
+    g = grids_one_wall()
+    g.surface[0][:] = 10
+    r = rect_cells(g, 2.0, 2.9, 0.0, 2.05)
+    g.surface[0][r] = 1
+    g.shallow[0][r] = 9
+    (d,) = ft.find_recessed_doors(g, 0)
+    assert (d.s0, d.s1, d.z1) == pytest.approx((2.0, 2.9, 2.05), abs=0.051)
+    merged = ft.merge_openings(ft.combine_doors([], [d]), [])
+    assert merged == [d]
+
+
+def test_baseboard_height_skips_the_floor_edge():
+    g = _edge_wall(seed=1)
+    c = g.cell
+    g.fh[0][:, 0] = 4 * 0.3  # the wall-floor junction
+    g.fh[0][:, int(0.08 / c)] = 4 * 0.15  # the baseboard's top (cell 4: 8-10 cm)
+    h, b, heights = ft.find_baseboard_height(g)
+    assert h == pytest.approx(0.09, abs=0.011)
+    assert len(b) == len(heights)
+
+
+def test_opening_iou():
+    a = ft.Opening("door", 0, 0.0, 1.0, 0.0, 2.0)
+    b = ft.Opening("door", 0, 0.5, 1.5, 0.0, 2.0)
+    assert a.iou(b) == pytest.approx(1 / 3)
+    assert a.iou(ft.Opening("door", 1, 0.0, 1.0, 0.0, 2.0)) == 0.0
+
+
+# ----------------------------------------------------------------------------- image evidence
+
+
+def test_oriented_edges_follow_the_vanishing_direction():
+    # A horizontal step edge; the x axis's vanishing point at infinity along image x.
+    img = np.zeros((40, 60))
+    img[20:] = 1.0
+    jj, ii = np.meshgrid(np.arange(60) + 0.5, np.arange(40) + 0.5)
+    uv = np.stack([jj.ravel(), ii.ravel()], axis=1)
+    along_x = oriented_edges(img, np.array([1.0, 0.0, 0.0]), uv).reshape(40, 60)
+    along_y = oriented_edges(img, np.array([0.0, 1.0, 0.0]), uv).reshape(40, 60)
+    assert along_x[19:21, 5:-5].min() > 0.2
+    assert along_y.max() == 0.0
+
+
+def test_vanishing_point_of_the_vertical_axis_for_a_level_camera():
+    intr = Intrinsics.from_fov(64, 48, 60.0)
+    fr = Frame(0, None, look_at([0, 0, 1.5], [1, 0, 1.5]), intr)
+    vp = vanishing_points(fr, np.eye(3), 1.0)
+    assert abs(vp[2, 2]) < 1e-9  # vertical lines stay parallel: vanishing point at infinity
+    assert vp[0, 2] != 0 and vp[0, :2] / vp[0, 2] == pytest.approx([32, 24])  # looking along x
+
+
+def test_rays_through_a_window_hole_mark_it_open():
+    room = RoomSpec(
+        np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
+        0.0,
+        2.5,
+        [Opening("window", 0, 1.0, 2.2, 0.9, 2.0, 0.2)],
+    )
+    parts, _ = build_room(room, 0.1, MATERIALS, baseboard=None)
+    pc = Piece.concat([p.piece for p in parts])
+    mesh = trimesh.Trimesh(pc.vertices, pc.faces, process=False)
+    intr = Intrinsics.from_fov(64, 48, 70.0)
+    lay = room_layout(room, None)
+    walls = [
+        {**w, "length": float(np.linalg.norm(np.subtract(w["end"], w["start"])))}
+        for w in lay["walls"]
+    ]
+    g = WallGrids.empty(walls, 0.1, 0.0, 2.5)
+    frames = [
+        Frame(i, None, look_at([1.6 + 0.3 * i, 2.5, 1.4], [1.6, 0.0, 1.4]), intr) for i in range(3)
+    ]
+    for fr in frames:  # grey images (the edges do not matter here)
+        fr.load_image = lambda: np.full((48, 64, 3), 128, np.uint8)  # type: ignore[method-assign]
+    face_wall = np.full(len(mesh.faces), -1)
+    accumulate_frames(g, frames, RayCaster(mesh), np.eye(3), face_wall)
+    (w,) = ft.find_holes(g, 0, min_size=0.2)
+    assert w.kind == "window"
+    assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((1.0, 2.2, 0.9, 2.0), abs=0.11)
+    assert g.surface[0].sum() > 0
+
+
+# ----------------------------------------------------------------------------- labels
+
+
+def test_shell_labels_on_a_clean_room():
+    room = RoomSpec(np.array([[0, 0], [4, 0], [4, 3], [0, 3]], float), 0.0, 2.5, [])
+    parts, _ = build_room(room, 0.1, MATERIALS, baseboard=None)
+    pc = Piece.concat([p.piece for p in parts])
+    m = trimesh.Trimesh(pc.vertices, pc.faces, process=False)
+    m.merge_vertices()
+    v, f = np.asarray(m.vertices), np.asarray(m.faces)
+    lay = room_layout(room, None)
+    lab, wall = shell_labels(v, vertex_normals(v, f), 0.0, 2.5, lay["walls"], None, 0.05)
+    lab = clean_labels(lab, vertex_adjacency(f, len(v)))
+    inner = (v[:, 2] > 0.2) & (v[:, 2] < 2.3) & (v[:, 0] > 0.2) & (v[:, 0] < 3.8)
+    assert np.all(lab[inner & (np.abs(v[:, 1]) < 1e-6)] == WALL)
+    assert np.all(wall[inner & (np.abs(v[:, 1]) < 1e-6)] == 0)
+    mid = (v[:, 0] > 0.2) & (v[:, 0] < 3.8) & (v[:, 1] > 0.2) & (v[:, 1] < 2.8)
+    assert np.all(lab[mid & (v[:, 2] < 1e-6)] == FLOOR)
+    assert np.all(lab[mid & (v[:, 2] > 2.5 - 1e-6)] == CEILING)
+    assert np.mean(lab == OTHER) < 0.05
+
+
+# ----------------------------------------------------------------------------- empty room
+
+
+def test_room_shell_is_watertight_with_openings():
+    poly = np.array([[0, 0], [6, 0], [6, 3], [3, 3], [3, 5.5], [0, 5.5]], float)
+    ops = [
+        {"kind": "window", "wall": 0, "s0": 2.0, "s1": 3.4, "z0": 0.9, "z1": 2.0, "depth": 0.2},
+        {"kind": "door", "wall": 4, "s0": 1.0, "s1": 1.9, "z0": 0.0, "z1": 2.05, "depth": 0.03},
+        {"kind": "passage", "wall": 1, "s0": 1.0, "s1": 2.0, "z0": 0.0, "z1": 2.1, "depth": 0.15},
+    ]
+    m, lab = room_shell(poly, 0.0, 2.6, ops)
+    assert m.is_watertight and m.is_winding_consistent
+    # Faces point into the room: the enclosed volume is negative.
+    assert m.volume == pytest.approx(
+        -(25.5 * 2.6 + 1.4 * 1.1 * 0.2 + 0.9 * 2.05 * 0.03 + 1.0 * 2.1 * 0.15), rel=1e-6
+    )
+    assert {int(x) for x in np.unique(lab)} >= {WALL, FLOOR, CEILING, PORTAL}
+
+
+def test_empty_room_mesh_from_a_layout_document():
+    room = RoomSpec(
+        np.array([[0, 0], [4, 0], [4, 3], [0, 3]], float),
+        0.0,
+        2.5,
+        [Opening("door", 1, 1.0, 1.9, 0.0, 2.0, 0.03)],
+    )
+    lay = room_layout(room, (0.08, 0.012))
+    lay["baseboard"]["pieces"] = [
+        {"wall": w, "s0": 0.0, "s1": 3.0 if w % 2 else 4.0} for w in (0, 2, 3)
+    ] + [{"wall": 1, "s0": 0.0, "s1": 1.0}, {"wall": 1, "s0": 1.9, "s1": 3.0}]
+    doc = {"rotation": np.eye(3).tolist(), "rooms": [lay]}
+    mesh, lab = empty_room_mesh(doc)
+    parts = mesh.split(only_watertight=False)
+    assert len(parts) == 6  # the shell and five baseboard boxes
+    assert all(p.is_watertight for p in parts)
+    assert len(lab) == len(mesh.faces)
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+
+def test_evaluation_of_the_truth_is_perfect():
+    a = RoomSpec(
+        np.array([[0, 0], [4, 0], [4, 4.5], [0, 4.5]], float),
+        0.0,
+        2.7,
+        [
+            Opening("window", 0, 1.2, 2.6, 0.9, 2.1, 0.2),
+            Opening("passage", 1, 1.8, 2.7, 0.0, 2.1, 0.15),
+        ],
+    )
+    truth = {"rooms": [room_layout(a, (0.08, 0.012))]}
+    est = {"rotation": np.eye(3).tolist(), "rooms": [dict(truth["rooms"][0])]}
+    est["rooms"][0]["baseboard"] = {
+        "height": 0.08,
+        "depth": 0.012,
+        "pieces": [
+            {"wall": 0, "s0": 0.0, "s1": 4.0},
+            {"wall": 1, "s0": 0.0, "s1": 1.8},
+            {"wall": 1, "s0": 2.7, "s1": 4.5},
+            {"wall": 2, "s0": 0.0, "s1": 4.0},
+            {"wall": 3, "s0": 0.0, "s1": 4.5},
+        ],
+    }
+    ev = evaluate_layout(est, truth, np.zeros(10), np.zeros(10))
+    assert ev["iou"] == pytest.approx(1.0)
+    assert ev["wall_error_cm"]["max"] == pytest.approx(0.0, abs=1e-9)
+    assert ev["floor_error_cm"] == 0.0 and ev["ceiling_error_cm"] == 0.0
+    assert ev["label_accuracy"] == 1.0
+    for kind in ("window", "passage", "baseboard"):
+        assert ev["features"][kind]["precision"] == 1.0
+        assert ev["features"][kind]["recall"] == 1.0
+    # A shifted room: IoU drops as expected.
+    iou, per = floorplan_iou(
+        [np.array([[0.2, 0], [4.2, 0], [4.2, 4.5], [0.2, 4.5]])], [np.asarray(a.polygon)]
+    )
+    assert iou == pytest.approx(3.8 / 4.2, abs=0.01) and per == [pytest.approx(iou)]
+
+
+def test_bright_hdr_vertices_are_binned_on_their_wall():
+    from reroom.layout.wallgrid import accumulate_bright
+
+    g = grids_one_wall()
+    rng = np.random.default_rng(0)
+    xyz = np.column_stack([rng.uniform(0, 5, 20000), np.zeros(20000), rng.uniform(0, 2.5, 20000)])
+    lum = np.full(len(xyz), 0.2)
+    inside = (xyz[:, 0] > 2.0) & (xyz[:, 0] < 3.0) & (xyz[:, 2] > 1.0) & (xyz[:, 2] < 2.0)
+    lum[inside] = 50.0  # daylight through a (hole-filled) window
+    thr = accumulate_bright(g, xyz, lum, np.zeros(len(xyz), int), factor=8.0)
+    assert thr == pytest.approx(1.6)
+    (w,) = ft.find_holes(g, 0)
+    assert w.kind == "window" and w.source == "bright"
+    assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((2.0, 3.0, 1.0, 2.0), abs=0.051)
+
+
+def test_fast_ply_writer_matches_the_project_writer(tmp_path):
+    from reroom.io.mesh import read_ply, write_ply
+    from reroom.io.mesh import write_triangle_ply
+
+    m = trimesh.creation.icosphere(2)
+    attrs = {
+        "label": np.arange(len(m.vertices)).astype(np.uint8),
+        "room": np.full(len(m.vertices), -1, np.int16),
+        "radiance": np.random.default_rng(0).random((len(m.vertices), 3)),
+    }
+    write_ply(tmp_path / "a.ply", m, attrs)
+    write_triangle_ply(tmp_path / "b.ply", m.vertices, m.faces, attrs)
+    assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+    write_triangle_ply(
+        tmp_path / "c.ply", m.vertices, m.faces, None, {"label": np.ones(len(m.faces), np.uint8)}
+    )
+    back = read_ply(tmp_path / "c.ply")
+    assert np.array_equal(back.faces, m.faces)
