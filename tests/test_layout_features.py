@@ -305,9 +305,10 @@ def test_bright_hdr_vertices_are_binned_on_their_wall():
     assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((2.0, 3.0, 1.0, 2.0), abs=0.051)
 
 
-def test_fast_ply_writer_matches_the_project_writer(tmp_path):
-    from reroom.io.mesh import read_ply, write_ply
-    from reroom.io.mesh import write_triangle_ply
+def test_fast_ply_writer_matches_plyfile(tmp_path):
+    from plyfile import PlyData, PlyElement
+
+    from reroom.io.mesh import read_ply, write_triangle_ply
 
     m = trimesh.creation.icosphere(2)
     attrs = {
@@ -315,7 +316,20 @@ def test_fast_ply_writer_matches_the_project_writer(tmp_path):
         "room": np.full(len(m.vertices), -1, np.int16),
         "radiance": np.random.default_rng(0).random((len(m.vertices), 3)),
     }
-    write_ply(tmp_path / "a.ply", m, attrs)
+    # The same mesh written by plyfile (the reference PLY implementation) has the same bytes.
+    names = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("label", "u1"), ("room", "i2")]
+    names += [(f"radiance_{c}", "f4") for c in "rgb"]
+    vert = np.empty(len(m.vertices), dtype=names)
+    for i, c in enumerate("xyz"):
+        vert[c] = m.vertices[:, i]
+    vert["label"], vert["room"] = attrs["label"], attrs["room"]
+    for i, c in enumerate("rgb"):
+        vert[f"radiance_{c}"] = attrs["radiance"][:, i]
+    face = np.empty(len(m.faces), dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = m.faces
+    PlyData([PlyElement.describe(vert, "vertex"), PlyElement.describe(face, "face")]).write(
+        str(tmp_path / "a.ply")
+    )
     write_triangle_ply(tmp_path / "b.ply", m.vertices, m.faces, attrs)
     assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
     write_triangle_ply(
