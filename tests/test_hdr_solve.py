@@ -52,14 +52,15 @@ def test_exact_problem_with_robust_weights_and_hat_still_exact():
     np.testing.assert_allclose(sol.scales, t, rtol=1e-9)
 
 
-def test_outliers_are_rejected_by_irls():
+@pytest.mark.parametrize("loss", ["cauchy", "huber"])
+def test_outliers_are_rejected_by_irls(loss):
     t, b, vi, fj = chain_problem(seed=1)
     rng = np.random.default_rng(2)
     x = t[fj] * b[vi] * np.exp(rng.normal(0, 0.01, (len(vi), 3)))
     bad = rng.random(len(vi)) < 0.08
     x[bad] *= rng.uniform(2.0, 6.0, (int(bad.sum()), 1))  # highlights: much brighter
     prob = SolveProblem.build(vi, fj, x, len(t))
-    robust = solve_problem(prob, SolveOptions(robust=True))
+    robust = solve_problem(prob, SolveOptions(robust=True, loss=loss))
     plain = solve_problem(prob, SolveOptions(robust=False))
     err_r = np.median(np.abs(robust.scales / t - 1))
     err_p = np.median(np.abs(plain.scales / t - 1))

@@ -105,24 +105,41 @@ def project_vertices(
 
 
 @nb.njit(cache=True)
-def relative_gradient(image: np.ndarray, luma_lut: np.ndarray, floor: float) -> np.ndarray:
+def relative_gradient(
+    image: np.ndarray, luma_lut: np.ndarray, floor: float, smooth: int = 0
+) -> np.ndarray:
     """Sobel gradient magnitude of the linear luminance, relative to the pixel's own.
 
     ``luma_lut[c, level]`` is channel ``c``'s contribution to the linear luminance.
     The result ``|grad L| / (L + floor)`` approximates ``|grad log L|``: a texture or
     depth edge reads the same at any exposure, while Sobel's smoothing across
     the derivative keeps per-pixel noise from triggering it (no logarithms: this
-    runs once per frame). Border pixels use replicated neighbours.
+    runs once per frame). With ``smooth = 1`` the luminance is first averaged over
+    3x3 pixels, which keeps the per-pixel noise of noisy frames from reading as
+    edges. Border pixels use replicated neighbours.
     """
     h, w = image.shape[0], image.shape[1]
-    lum = np.empty((h, w), np.float32)
+    raw = np.empty((h, w), np.float32)
     for r in range(h):
         for c in range(w):
-            lum[r, c] = (
+            raw[r, c] = (
                 luma_lut[0, image[r, c, 0]]
                 + luma_lut[1, image[r, c, 1]]
                 + luma_lut[2, image[r, c, 2]]
             )
+    if smooth > 0:
+        lum = np.empty((h, w), np.float32)
+        for r in range(h):
+            for c in range(w):
+                acc = np.float32(0.0)
+                cnt = 0
+                for rr in range(max(r - smooth, 0), min(r + smooth + 1, h)):
+                    for cc in range(max(c - smooth, 0), min(c + smooth + 1, w)):
+                        acc += raw[rr, cc]
+                        cnt += 1
+                lum[r, c] = acc / cnt
+    else:
+        lum = raw
     out = np.empty((h, w), np.float32)
     for r in range(h):
         # Clamped neighbours: border pixels get one-sided (replicated) differences.

@@ -111,7 +111,7 @@ def seam_samples(
 ) -> SeamSamples:
     """Pick the samples the seam metric needs (usable samples of ``mask`` vertices, capped)."""
     rng = np.random.default_rng(seed)
-    ok = usable_samples(obs, SolveOptions())
+    ok = usable_samples(obs, SolveOptions(), fallback=False)
     verts = np.flatnonzero(np.asarray(mask, bool))
     if len(verts) > max_vertices:
         verts = rng.choice(verts, max_vertices, replace=False)

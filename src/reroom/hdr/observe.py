@@ -123,8 +123,17 @@ class ObserveOptions:
     gradient_threshold:
         Samples near a Sobel gradient of log-luminance above this (per pixel;
         0.25 = a 25 % change per pixel) are dropped. ``inf`` disables the test.
+    gradient_noise_factor:
+        If positive, in noisy frames the threshold rises to this many times the
+        frame's median gradient (its noise level: edges are sparse). Off by
+        default: measured worse than a fixed threshold plus the solve's fallback
+        to edge samples for frames with few clean ones (``docs/hdr.md``).
+    gradient_smoothing:
+        Average the luminance over ``(2 s + 1)^2`` pixels before the gradient
+        (0 = off), so that pixel noise does not read as edges.
     gradient_radius:
         How near, in pixels (a square window).
+
     gradient_floor:
         Linear value added to the luminance in the relative gradient's
         denominator, so that noise in near-black pixels is not taken for edges.
@@ -141,6 +150,8 @@ class ObserveOptions:
     margin: float = 1.0
     min_cos: float = 0.1
     gradient_threshold: float = 0.25
+    gradient_noise_factor: float = 0.0
+    gradient_smoothing: int = 1
     gradient_radius: int = 1
     gradient_floor: float = 0.01
     keep_flagged: bool = True
@@ -473,9 +484,15 @@ def collect_observations(
             rows = np.floor(v[idx]).astype(np.int64)
             cols = np.floor(u[idx]).astype(np.int64)
             if len(idx) and np.isfinite(opt.gradient_threshold):
-                grad = K.relative_gradient(image, luma_lut, np.float32(opt.gradient_floor))
+                grad = K.relative_gradient(
+                    image, luma_lut, np.float32(opt.gradient_floor), int(opt.gradient_smoothing)
+                )
+                # Edges are sparse, so the median gradient is the frame's noise (and smooth
+                # shading): in a noisy frame the fixed threshold would flag everything.
+                noise = float(np.median(grad[::4, ::4])) if grad.size else 0.0
+                limit = max(opt.gradient_threshold, opt.gradient_noise_factor * noise)
                 near = K.max_in_window(grad, rows, cols, int(opt.gradient_radius))
-                flags[near > opt.gradient_threshold] |= NEAR_IMAGE_EDGE
+                flags[near > limit] |= NEAR_IMAGE_EDGE
             stats["clean"][j] = int(np.count_nonzero((flags & EDGE_FLAGS) == 0))
             if not opt.keep_flagged:
                 keep = (flags & EDGE_FLAGS) == 0

@@ -368,10 +368,8 @@ def _explain_frames(
             why = "image unreadable"
         elif e == s:
             why = "sees no usable part of the mesh"
-        elif not obs.clean[s:e].any():
-            why = "every sample lies near an image or depth edge"
         elif not usable[s:e].any():
-            vals = obs.value[s:e][obs.clean[s:e]]
+            vals = obs.value[s:e]
             if np.mean(vals.max(axis=1) > opt.max_level) > 0.5:
                 why = "saturated where it sees the mesh"
             else:

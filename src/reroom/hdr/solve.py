@@ -12,7 +12,8 @@ Solvers (``SolveOptions.method``; ``benchmarks/bench_hdr.py --solvers`` compares
     sparse bundle adjustment), leaving an ``F x F`` system -- the weighted
     Laplacian of the frames' co-visibility graph -- solved directly (Cholesky).
     Robustness (specular highlights, misregistered pixels) comes from iteratively
-    reweighted least squares with Huber weights on residuals scaled by their MAD.
+    reweighted least squares with Cauchy (or Huber) weights on residuals scaled
+    by their MAD.
     One direct solve per IRLS round; no step sizes, no initialisation.
 ``"linear-schur"``
     Eq. 3.1 exactly as written (linear residuals ``t_j b_i - X_ij``), by
@@ -44,7 +45,7 @@ from scipy.sparse.csgraph import connected_components
 
 from reroom.errors import ReroomError
 from reroom.hdr import _kernels as K
-from reroom.hdr.observe import Observations
+from reroom.hdr.observe import CLIPPED, Observations
 
 __all__ = [
     "ExposureSolution",
@@ -82,12 +83,19 @@ class SolveOptions:
         exposure error of 0.33-0.35 % against 0.46 % with 64 (``docs/hdr.md``).
     min_frame_samples:
         See ``max_vertices``; frames with fewer usable samples are still solved.
+    min_clean_samples:
+        A frame with fewer clean usable samples (not near an image or depth edge)
+        also uses its samples near edges (:func:`usable_samples`).
     weighting:
         ``"hat"``: each sample weighted by the thesis's hat confidence (eq. 3.3) of
         its least confident channel; ``"uniform"``: all equal, as in the thesis's
         solve.
-    robust:
-        Huber IRLS (``huber_k`` in robust standard deviations) against outliers.
+    robust, loss, robust_k:
+        Iteratively reweighted least squares against outliers (specular
+        highlights, misregistered pixels) with ``loss`` ``"cauchy"`` (default:
+        redescending, so gross outliers end up with almost no weight) or
+        ``"huber"``, on residuals in units of ``robust_k`` robust (MAD) standard
+        deviations.
     irls_iterations, max_iterations, tol:
         IRLS rounds; iteration cap and tolerance (on ``max |d log t|``) of the
         iterative linear-domain solvers.
@@ -103,10 +111,12 @@ class SolveOptions:
     max_vertices: int = 30000
     max_samples_per_vertex: int = 16
     min_frame_samples: int = 40
+    min_clean_samples: int = 40
     weighting: str = "hat"
     robust: bool = True
-    huber_k: float = 2.0
-    irls_iterations: int = 5
+    loss: str = "cauchy"
+    robust_k: float = 1.0
+    irls_iterations: int = 8
     max_iterations: int = 200
     tol: float = 1e-10
     reference: int = 0
@@ -229,11 +239,17 @@ def hat_confidence(levels: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- solvers
 
 
-def _robust_weights(r: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
-    """Huber weights of residual rows ``r`` (S, C), scaled per channel by the MAD."""
+def _robust_weights(r: np.ndarray, k: float, loss: str = "huber") -> tuple[np.ndarray, np.ndarray]:
+    """IRLS weights of residual rows ``r`` (S, C), scaled per channel by the MAD.
+
+    ``"huber"``: ``min(1, k / rho)``; ``"cauchy"``: ``1 / (1 + (rho / k)^2)``, which
+    keeps discounting ever larger residuals (a redescending influence).
+    """
     sigma = 1.4826 * np.median(np.abs(r), axis=0)
     sigma = np.maximum(sigma, 1e-9)
     rho = np.sqrt(np.mean((r / sigma) ** 2, axis=1))
+    if loss == "cauchy":
+        return 1.0 / (1.0 + (rho / k) ** 2), sigma
     return np.minimum(1.0, k / np.maximum(rho, 1e-300)), sigma
 
 
@@ -304,7 +320,7 @@ def _log_schur(
             axis=1,
         )
         r = y - tau[prob.frames] - beta[prob.local]
-        rw, sigma = _robust_weights(r, opt.huber_k)
+        rw, sigma = _robust_weights(r, opt.robust_k, opt.loss)
         if not opt.robust or change < opt.tol:
             break
         w = prob.weights * rw
@@ -364,7 +380,7 @@ def _alternating(
             break
         b = _vertex_values(prob, t, w)
         r = np.log(prob.x) - np.log(t[prob.frames] * np.maximum(b[prob.local], 1e-300))
-        w = prob.weights * _robust_weights(r, opt.huber_k)[0]
+        w = prob.weights * _robust_weights(r, opt.robust_k)[0]
     return t, {"iterations": iters}
 
 
@@ -438,7 +454,7 @@ def _linear_schur(
             break
         b3 = _vertex_values(prob, t_all, w)
         r3 = np.log(prob.x) - np.log(t_all[prob.frames] * np.maximum(b3[prob.local], 1e-300))
-        w = w0 * _robust_weights(r3, opt.huber_k)[0]
+        w = w0 * _robust_weights(r3, opt.robust_k)[0]
     return t_all, {"iterations": iters}
 
 
@@ -597,17 +613,28 @@ def solve_problem(
     return ExposureSolution(scales, status, reference, samples, info)
 
 
-def usable_samples(obs: Observations, opt: SolveOptions) -> np.ndarray:
-    """``(S,)`` bool: samples fit for the solve.
+def usable_samples(obs: Observations, opt: SolveOptions, fallback: bool = True) -> np.ndarray:
+    """``(S,)`` bool: samples fit for the solve (and the baselines).
 
     Clean (not near an image or depth edge), no clipped pixel in their value,
     every channel's level in ``[min_level, max_level]`` and a positive linear value.
+    With ``fallback``, a frame with fewer than ``min_clean_samples`` such samples
+    also uses its samples near edges, rather than get a poor exposure or none.
     """
     v = obs.value
     # Per-channel comparisons: reductions along a length-3 axis are slow on 30M rows.
-    ok = obs.flags == 0
+    levels_ok = (obs.flags & CLIPPED) == 0
     for c in range(v.shape[1]):
-        ok &= (v[:, c] >= opt.min_level) & (v[:, c] <= opt.max_level) & (obs.linear[:, c] > 0)
+        levels_ok &= (v[:, c] >= opt.min_level) & (v[:, c] <= opt.max_level)
+        levels_ok &= obs.linear[:, c] > 0
+    ok = levels_ok & obs.clean
+    if fallback and len(ok):
+        # A frame with too few clean samples falls back on its samples near edges.
+        off = obs.frame_offsets
+        have = np.add.reduceat(ok, off[:-1])
+        have[off[:-1] == off[1:]] = 0
+        for j in np.flatnonzero(have < opt.min_clean_samples):
+            ok[off[j] : off[j + 1]] = levels_ok[off[j] : off[j + 1]]
     return ok
 
 

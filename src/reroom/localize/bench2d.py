@@ -170,10 +170,11 @@ def matches_truth(
 
 
 def settings_for(noise: float) -> tuple[VoteParams, RefineParams]:
-    """Voting and refinement settings: the thesis's radius 1 without noise, 15 with."""
+    """Voting and refinement settings: the thesis's ring votes with radius 1 without noise;
+    with noise its radius 15, but counting distinct limiters (eq. 6.8, see docs/localize.md)."""
     if noise == 0:
-        return VoteParams(radius=1), RefineParams()
-    return VoteParams(radius=15), RefineParams()
+        return VoteParams(method="ring", radius=1), RefineParams()
+    return VoteParams(method="count", radius=15), RefineParams()
 
 
 @dataclass

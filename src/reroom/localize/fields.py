@@ -736,7 +736,8 @@ class VoteParams:
         Candidates closer than this fraction of the scene radius are combined (thesis: 0.1).
     surface_margin:
         Candidates closer than this fraction of the scene radius to a surface are
-        discarded (false peaks near occluders and walls, §6.3.6).
+        discarded (false peaks near occluders and walls, §6.3.6); with ``"count"``, also
+        those closer than the disc radius.
     """
 
     method: str = "ring"
@@ -783,6 +784,10 @@ class FieldProposer2D:
         self.start_height = self.params.start_height * len(samples) * unit
         self.merge_distance = self.params.merge * room.radius
         margin = self.params.surface_margin * room.radius
+        if self.params.method == "count":
+            # A disc that reaches a surface counts that surface's own limiters, which
+            # sweep along it pixel by pixel: false peaks all along the walls.
+            margin = max(margin, self.params.radius * self.grid.pixel)
         free = _free_mask(room, self.grid)
         self.valid = free & (room.distance_to_surfaces(self.centres) >= margin)
 

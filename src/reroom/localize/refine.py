@@ -258,7 +258,10 @@ def localize_lights(
                 if last[2] >= tolerance:
                     # The usual reason to get here is a hypothesis standing for a cluster
                     # of lights that never voted apart (the thesis's Fig. 6.6b).
-                    last = split_lights(meas, *last[:2], bounds, prm.match_distance, visibility)
+                    last = split_lights(
+                        meas, *last[:2], bounds, prm.match_distance, visibility,
+                        accept_below=tolerance,
+                    )  # fmt: skip
                 if last[2] < tolerance:
                     if prm.select:
                         last = _select(meas, last, bounds, tolerance, prm, visibility)

@@ -333,6 +333,7 @@ def split_lights(
     visibility: Visibility | None = None,
     directions: int = 3,
     max_splits: int = 2,
+    accept_below: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Try replacing each light by two, ``distance`` apart; keep splits the data demand.
 
@@ -342,6 +343,8 @@ def split_lights(
     is kept when it lowers the error decisively (by ``DECISIVE`` or more), and the search
     repeats (at most ``max_splits`` times). Without noise a true split drops the error by
     orders of magnitude; with noise, a split that only chases the noise gains far less.
+    A split that brings the error below ``accept_below`` is kept too (a solution that was
+    not good enough becoming good enough is decisive whatever the factor).
     Returns ``positions, intensities, mse``.
     """
     pos, inten = positions, intensities
@@ -359,7 +362,8 @@ def split_lights(
                 p0 = np.concatenate([np.delete(pos, i, axis=0), pair])
                 i0 = np.concatenate([np.delete(inten, i), [0.5 * inten[i]] * 2])
                 p2, i2, e2 = fit_lights(meas, p0, i0, bounds, visibility)
-                if e2 * DECISIVE < err and (best is None or e2 < best[3]):
+                good = e2 * DECISIVE < err or (e2 < accept_below <= err)
+                if good and (best is None or e2 < best[3]):
                     best = (None, p2, i2, e2)
         if best is None:
             break
