@@ -221,8 +221,8 @@ def bench_accuracy(args, scan: Path | None = None) -> dict:
     from reroom.hdr.evaluate import evaluate_hdr
 
     scan = scan or accuracy_scan(args.cache)
-    name = scan.name
-    out = args.cache / f"hdr_{name}"
+    scan_name = scan.name
+    out = args.cache / f"hdr_{scan_name}"
     t = time.perf_counter()
     res = run_hdr(scan, out, HdrOptions())
     wall = time.perf_counter() - t
@@ -230,7 +230,7 @@ def bench_accuracy(args, scan: Path | None = None) -> dict:
     truth_opts = json.loads((scan / "ground_truth/ground_truth.json").read_text())["options"]
     print()
     print(
-        f"### Accuracy: {name} ({truth_opts['frames']} frames {truth_opts['width']}x"
+        f"### Accuracy: {scan_name} ({truth_opts['frames']} frames {truth_opts['width']}x"
         f"{truth_opts['height']}, {truth_opts['spp']} spp, noise on, truth "
         f"{truth_opts['vertex_spp']} spp/vertex)"
     )
@@ -290,7 +290,7 @@ def bench_accuracy(args, scan: Path | None = None) -> dict:
         print(f"- {'PASS' if ok else 'FAIL'}: {k}")
     if args.save_images:
         args.save_images.mkdir(parents=True, exist_ok=True)
-        short = name.split("_")[0]
+        short = scan_name.split("_")[0]
         for src, dst in (
             ("report/hdr_exposures_truth.png", f"hdr_exposures_{short}.png"),
             ("report/hdr_before_after.png", f"hdr_before_after_{short}.png"),
@@ -351,10 +351,10 @@ def bench_solvers(args) -> None:
     # repeat their iterations); compare them with log-schur without IRLS too.
     plain = dict(robust=False)
     variants = [
-        ("log-schur (default: hat weights, Cauchy IRLS, 30k vertices)", SolveOptions()),
+        ("log-schur (default: uniform weights, Cauchy IRLS, 30k vertices)", SolveOptions()),
         ("log-schur, Huber IRLS (k = 2)", SolveOptions(loss="huber", robust_k=2.0)),
         ("log-schur, no IRLS", SolveOptions(**plain)),
-        ("log-schur, uniform weights", SolveOptions(weighting="uniform")),
+        ("log-schur, hat weights (eq. 3.3)", SolveOptions(weighting="hat")),
         (
             "log-schur, all vertices, all samples",
             SolveOptions(max_vertices=10**9, max_samples_per_vertex=10**9),
@@ -364,6 +364,11 @@ def bench_solvers(args) -> None:
         (
             "linear-schur (eq. 3.1, LM from ones), no IRLS",
             SolveOptions(method="linear-schur", **plain),
+        ),
+        ("linear-schur, Cauchy IRLS", SolveOptions(method="linear-schur")),
+        (
+            "alternating (eq. 3.1, from ones), 100 iterations/round, Cauchy IRLS",
+            SolveOptions(method="alternating", max_iterations=100),
         ),
         (
             "alternating (eq. 3.1, from ones), 100 iterations, no IRLS",

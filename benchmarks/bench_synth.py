@@ -60,6 +60,7 @@ def main() -> None:
     ap.add_argument("--large-spp", type=int, default=4)
     ap.add_argument("--large-frames", type=int, default=300)
     ap.add_argument("--mesh", default="clean", choices=("clean", "corrupted", "fused"))
+    ap.add_argument("--skip-small", action="store_true", help="only the --large run")
     args = ap.parse_args()
     info = mitsuba_info()
     print(f"mitsuba {info.mitsuba_version} variant {info.variant}; {os.cpu_count()} cores")
@@ -70,8 +71,10 @@ def main() -> None:
             f"furnished 24 x 160x120 @{spp}spp, {args.mesh} mesh",
             60.0,
         )
-        for spp in (16, 64)
+        for spp in (() if args.skip_small else (16, 64))
     ]
+    for row in rows:
+        print(json.dumps(row), flush=True)
     if args.large:
         rows.append(
             run(
@@ -88,8 +91,7 @@ def main() -> None:
                 None,
             )
         )
-    for row in rows:
-        print(json.dumps(row))
+        print(json.dumps(rows[-1]), flush=True)
     print()
     print(
         "| run | wall (s) | frames (s) | Msamples/s (frames) | vertex radiance (s) | vertices | target (s) | target/ours |"

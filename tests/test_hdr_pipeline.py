@@ -14,6 +14,7 @@ from reroom.errors import ReroomError, ScanError
 from reroom.hdr import HdrOptions, SolveOptions, run_hdr
 from reroom.hdr.evaluate import evaluate_hdr
 from reroom.hdr.synthetic import box_room, write_projected_scan
+from reroom.hdr.vertex_exr import read_vertex_exr
 from reroom.io.mesh import read_ply
 from reroom.scan import Intrinsics, look_at
 from reroom.synth.camera_sim import CameraModel
@@ -69,7 +70,7 @@ def result(scan_dir, tmp_path_factory):
 
 def test_outputs_written(result):
     res, out, stages = result
-    for name in ("hdr_mesh.ply", "exposures.json", "hdr_extras.npz"):
+    for name in ("hdr_mesh.ply", "hdr_radiance.exr", "exposures.json", "hdr_extras.npz"):
         assert (out / name).is_file()
     for name in ("hdr_exposures.png", "hdr_before_after.png", "report.md"):
         assert (out / "report" / name).stat().st_size > 0
@@ -82,6 +83,9 @@ def test_outputs_written(result):
     np.testing.assert_array_equal(attrs["observed"].astype(bool), res.observed)
     np.testing.assert_array_equal(attrs["sample_count"], res.sample_count)
     assert np.all(attrs["radiance"][~res.observed] == 0)
+    rad_exr, obs_exr = read_vertex_exr(out / "hdr_radiance.exr", len(mesh.vertices))
+    np.testing.assert_array_equal(rad_exr, attrs["radiance"])
+    np.testing.assert_array_equal(obs_exr, res.observed)
     doc = json.loads((out / "exposures.json").read_text())
     assert len(doc["frames"]) == N_FRAMES
     assert doc["frames"][0]["scale"] == [1.0, 1.0, 1.0]

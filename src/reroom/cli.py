@@ -90,9 +90,10 @@ def synth(
     spp: Annotated[
         int,
         typer.Option(
-            help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler)."
+            help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler; "
+            "64 for cleaner frames at 4x the time)."
         ),
-    ] = 64,
+    ] = 16,
     vertex_spp: Annotated[
         int, typer.Option(help="Samples per vertex for the true radiance.")
     ] = 256,
@@ -276,7 +277,7 @@ def demo(
         width=160,
         height=120,
         fov=60.0,
-        spp=64,
+        spp=16,
         vertex_spp=256,
         seed=0,
         hdri="courtyard",

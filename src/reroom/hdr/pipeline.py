@@ -33,6 +33,7 @@ from reroom.hdr.reproject import (
     reproject_radiance,
 )
 from reroom.hdr.solve import ExposureSolution, SolveOptions, solve_exposures, usable_samples
+from reroom.hdr.vertex_exr import write_vertex_exr
 from reroom.io.atomic import atomic_path, atomic_write_json
 from reroom.io.mesh import write_ply
 from reroom.rays import RayCaster
@@ -45,6 +46,7 @@ ProgressFn = Callable[[str, int, int], None]
 #: What :func:`run_hdr` writes, relative to its output folder.
 OUTPUT_FILES = {
     "mesh": "hdr_mesh.ply",
+    "radiance_exr": "hdr_radiance.exr",
     "exposures": "exposures.json",
     "extras": "hdr_extras.npz",
     "report": "report/report.md",
@@ -147,6 +149,9 @@ def run_hdr(
         * ``hdr_mesh.ply`` -- the scan mesh with float per-vertex ``radiance``
           (``radiance_r/g/b``, linear, units of the reference frame's scale),
           ``observed`` (uint8 flag) and ``sample_count``;
+        * ``hdr_radiance.exr`` -- the same radiance as an RGBA float image, vertex
+          ``i`` at pixel ``(i // 1024, i % 1024)``, A = observed
+          (:mod:`reroom.hdr.vertex_exr`);
         * ``exposures.json`` -- per frame: ``scale`` (per channel; null when the
           frame has no exposure), ``status``, sample counts, and the baselines'
           scales; solver information, options, warnings, timings;
@@ -241,6 +246,9 @@ def run_hdr(
             "observed": rad.observed.astype(np.uint8),
             "sample_count": rad.sample_count.astype(np.int32),
         },
+    )
+    files["radiance_exr"] = write_vertex_exr(
+        out / OUTPUT_FILES["radiance_exr"], rad.radiance, rad.observed
     )
     edges = np.asarray(scan.mesh.edges_unique)
     flat = flat_vertices(edges, normals)

@@ -135,16 +135,19 @@ def read_exr(path: str | Path) -> np.ndarray:
 
 
 def write_exr(path: str | Path, image: np.ndarray) -> Path:
-    """Write a float ``(H, W, 3)`` or ``(H, W)`` image as a ZIP-compressed EXR, atomically."""
+    """Write a float ``(H, W, 3)``, ``(H, W, 4)`` (RGBA) or ``(H, W)`` image as a
+    ZIP-compressed EXR, atomically."""
     import OpenEXR
 
     arr = np.ascontiguousarray(np.asarray(image, dtype=np.float32))
     if arr.ndim == 3 and arr.shape[2] == 3:
         channels = {"RGB": arr}
+    elif arr.ndim == 3 and arr.shape[2] == 4:
+        channels = {"RGBA": arr}
     elif arr.ndim == 2:
         channels = {"Y": arr}
     else:
-        raise ValueError(f"expected (H, W, 3) or (H, W), got {arr.shape}")
+        raise ValueError(f"expected (H, W, 3), (H, W, 4) or (H, W), got {arr.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp, OpenEXR.File(header, channels) as f:
         f.write(str(tmp))

@@ -42,9 +42,9 @@ class SynthOptions:
     width: int = 160
     height: int = 120
     fov_y_deg: float = 60.0
-    spp: int = 64
+    spp: int = 16
     vertex_spp: int = 256
-    max_depth: int = -1
+    max_depth: int = 256
     seed: int = 0
     hdri: str = "courtyard"
     lights: Sequence[str] | None = None  # names of lights left on; None = all

@@ -56,7 +56,7 @@ def _write_part_ply(path: Path, piece: Piece) -> None:
 
 
 def write_scene(
-    spec: SceneSpec, scene_dir: str | Path, max_depth: int = -1, rr_depth: int = 4
+    spec: SceneSpec, scene_dir: str | Path, max_depth: int = 256, rr_depth: int = 4
 ) -> dict[str, Any]:
     """Write a preset's parts, textures and photometry; return (and save) ``scene.json``."""
     scene_dir = Path(scene_dir)
