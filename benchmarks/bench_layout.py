@@ -59,15 +59,15 @@ def _load() -> str:
         return "?"
 
 
-def scan_path(preset: str, cache: Path) -> Path:
-    """The cached fused scan of a preset, generated on first use."""
+def scan_path(preset: str, cache: Path, mesh: str = "fused") -> Path:
+    """The cached scan of a preset (``mesh`` fused or clean), generated on first use."""
     from reroom.synth.generate import SynthOptions, generate_scan
 
     frames, w, h, spp = PRESETS[preset]
-    out = cache / f"{preset}_fused_{frames}_{w}x{h}_{spp}"
+    out = cache / f"{preset}_{mesh}_{frames}_{w}x{h}_{spp}"
     if not (out / "transforms.json").exists():
         print(f"generating {out} ...", flush=True)
-        opts = SynthOptions(frames=frames, width=w, height=h, spp=spp, vertex_spp=1, mesh="fused")
+        opts = SynthOptions(frames=frames, width=w, height=h, spp=spp, vertex_spp=1, mesh=mesh)
         generate_scan(preset, out, opts, overwrite=True)
     return out
 
@@ -75,14 +75,14 @@ def scan_path(preset: str, cache: Path) -> Path:
 # --------------------------------------------------------------------------- accuracy
 
 
-def accuracy(cache: Path) -> list[dict]:
+def accuracy(cache: Path, mesh: str = "fused") -> list[dict]:
     from reroom.layout import run_layout
     from reroom.layout.evaluate import evaluate_scan
 
     rows = []
     for preset in PRESETS:
-        scan = scan_path(preset, cache)
-        out = OUT / preset
+        scan = scan_path(preset, cache, mesh)
+        out = OUT / f"{preset}_{mesh}"
         t = time.perf_counter()
         res = run_layout(scan, out)
         wall = time.perf_counter() - t
@@ -92,7 +92,7 @@ def accuracy(cache: Path) -> list[dict]:
         ev["timings"] = res.timings
         ev["vertices"] = len(res.labels)
         rows.append(ev)
-    print(f"\n### Accuracy (fused meshes; load {_load()})\n")
+    print(f"\n### Accuracy ({mesh} meshes; load {_load()})\n")
     print(
         "| preset | vertices | rooms | IoU | walls (cm) mean / max | floor / ceiling (cm) "
         "| labels wall/floor/ceiling | doors | windows | passages | baseboard (height err) "
@@ -412,11 +412,12 @@ def main() -> None:
     ap.add_argument("--slambook2", action="store_true")
     ap.add_argument("--figures", type=Path, default=None, help="write the docs pictures here")
     ap.add_argument("--cache", type=Path, default=CACHE)
+    ap.add_argument("--mesh", default="fused", choices=("fused", "clean"), help="for --accuracy")
     args = ap.parse_args()
     if not (args.accuracy or args.methods or args.speed or args.slambook2 or args.figures):
         args.accuracy = True
     if args.accuracy:
-        accuracy(args.cache)
+        accuracy(args.cache, args.mesh)
     if args.methods:
         methods(args.cache)
     if args.speed:

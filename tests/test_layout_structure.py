@@ -240,6 +240,21 @@ def test_structure_of_an_l_shaped_room_and_two_rooms_with_a_passage():
     assert len(st.rooms) == 1 and st.rooms[0].area > 20
 
 
+def test_closed_cabinet_against_a_wall_does_not_notch_the_room():
+    # A closed box (front, sides, back, top) against the wall of a complete mesh: its
+    # front scores as a wall and its footprint is walled off unless walls must reach
+    # the ceiling (a notch and a false passage above the cabinet, seen on `furnished`).
+    # Parts not welded, as in the generator's clean mesh (welding happened to hide it).
+    cabinet = box([4.5, 1.4, 0.0], [4.95, 2.4, 1.2], 0.1, skip=("-z",))
+    parts = [p.piece for p in build_room(box_room(), 0.1, MATERIALS)[0]]
+    pc = Piece.concat([*parts, cabinet])
+    st = estimate_structure(pc.vertices, pc.faces)
+    assert len(st.rooms) == 1
+    assert np.allclose(
+        sorted(map(tuple, st.rooms[0].polygon)), [(0, 0), (0, 4), (5, 0), (5, 4)], atol=0.02
+    )
+
+
 def _vf(m: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m.vertices), np.asarray(m.faces)
 

@@ -89,7 +89,7 @@ class LayoutOptions:
     label_angle_deg: float = 35.0
     close_steps: int = 2
     features: bool = True
-    max_frames: int = 40
+    max_frames: int = 120
     max_width: int = 320
     wall_cell: float = 0.02
     radiance: Any = None

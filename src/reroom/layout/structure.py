@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from reroom.layout import floorplan as fp
 from reroom.layout.errors import LayoutError
@@ -179,6 +180,29 @@ def wall_support(polygon: np.ndarray, segments: list[Segment], tol: float) -> fl
     return covered / total if total > 0 else 0.0
 
 
+def tall_surface_cells(
+    xyz: np.ndarray,
+    normals: np.ndarray,
+    floor_z: float,
+    ceiling_z: float,
+    grid: FloorGrid,
+    reach: float = 0.85,
+) -> np.ndarray:
+    """Cells of the floor grid holding a vertical surface that reaches near the ceiling.
+
+    Walls run from floor to ceiling (above a door there is still wall); furniture
+    stops lower. A cell counts when a vertical-facing vertex in it or in one of its 8
+    neighbours (the wall score's grid and the vertices may be a cell apart) lies above
+    ``floor_z + reach * (ceiling_z - floor_z)``.
+    """
+    vertical = np.abs(normals[:, 2]) < 0.3
+    top = np.full(grid.shape, -np.inf)
+    i, j = grid.index(xyz[vertical, :2])
+    np.maximum.at(top, (i, j), xyz[vertical, 2])
+    tall = top > floor_z + reach * (ceiling_z - floor_z)
+    return ndimage.binary_dilation(tall, np.ones((3, 3), bool))
+
+
 def ceiling_mask(
     st_xyz: np.ndarray, st_normals: np.ndarray, ceiling_z: float, r: float, grid: FloorGrid
 ) -> np.ndarray:
@@ -305,8 +329,13 @@ def estimate_structure(
                 [] if cyc is None else [Room(cyc.polygon, fp.polygon_walls(cyc.polygon), cyc.order)]
             )
         elif opt.floorplan == "regions":
-            # Cells where a wall stands: a quarter of a seen wall column's score.
+            # Cells where a wall stands: a quarter of a seen wall column's score, and
+            # vertical surface reaching up to the ceiling there. Without the second test
+            # a closed piece of furniture against a wall (a cabinet: front, sides, back,
+            # with the wall behind it in a complete mesh) walls off its own footprint
+            # and the room outline gets a notch (and a false passage above it).
             walls = scores.raw.max(axis=0) > 0.5 * thr
+            walls &= tall_surface_cells(xyz, nrm, floor.z, ceiling.z, grid)
             rooms, labels = _region_rooms(segments, grid, cmask, walls, r, opt)
         else:
             raise ValueError(f"floorplan must be 'regions' or 'cycle', not {opt.floorplan!r}")
