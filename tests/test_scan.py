@@ -290,6 +290,35 @@ def test_ply_attributes_round_trip(tmp_path: Path) -> None:
     np.testing.assert_array_equal(back.vertex_attributes["label"], np.arange(n))
 
 
+def test_binary_ply_fast_and_general_readers_agree(tmp_path: Path) -> None:
+    import plyfile
+    import trimesh
+
+    from reroom.io.mesh import read_ply, write_ply
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    write_ply(tmp_path / "tri.ply", mesh, {"label": np.arange(len(mesh.vertices)) % 7})
+    back = read_ply(tmp_path / "tri.ply")  # fixed-size fast path
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+    assert back.faces.dtype == np.int64
+    np.testing.assert_allclose(back.vertices, mesh.vertices, rtol=1e-6)
+    np.testing.assert_array_equal(
+        back.vertex_attributes["label"], np.arange(len(mesh.vertices)) % 7
+    )
+    # A binary file with one quad among triangles: the fast read fails, the general one
+    # reports the quad.
+    verts = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0)], dtype="f4,f4,f4")
+    verts.dtype.names = ("x", "y", "z")
+    faces = np.empty(2, dtype=[("vertex_indices", "O")])
+    faces[0] = (np.array([1, 4, 2], "i4"),)
+    faces[1] = (np.array([0, 1, 2, 3], "i4"),)
+    plyfile.PlyData(
+        [plyfile.PlyElement.describe(verts, "vertex"), plyfile.PlyElement.describe(faces, "face")]
+    ).write(str(tmp_path / "mixed.ply"))
+    with pytest.raises(ScanError, match=r"1 faces are not triangles \(faces with \[4\] vertices\)"):
+        read_ply(tmp_path / "mixed.ply")
+
+
 def test_sampler_choice() -> None:
     from reroom.render.camera import is_power_of_four, perspective_sensor
 
