@@ -115,7 +115,7 @@ _REGISTERED: set[str] = set()
 
 # ---------------------------------------------------------------------- registration
 def register_emitters() -> ModuleType:
-    """Register ``reroom_goniometric`` and ``reroom_portal`` with Mitsuba (idempotent).
+    """Register ``reroom_goniometric``, ``reroom_portal`` and ``reroom_line`` (idempotent).
 
     Returns
     -------
@@ -125,9 +125,13 @@ def register_emitters() -> ModuleType:
     mi = mitsuba()
     variant = mi.variant()
     if variant not in _REGISTERED:
+        from reroom.render.line_emitter import LINE, make_line_class
+
         gonio_cls, portal_cls = _make_classes(mi)
+        line_cls = make_line_class(mi)
         mi.register_emitter(GONIOMETRIC, lambda props: gonio_cls(props))
         mi.register_emitter(PORTAL, lambda props: portal_cls(props))
+        mi.register_emitter(LINE, lambda props: line_cls(props))
         _REGISTERED.add(variant)
     return mi
 

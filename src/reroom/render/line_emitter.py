@@ -1,0 +1,267 @@
+"""``reroom_line``: a generalized line light (thesis §5.5.4) as a Python Mitsuba emitter.
+
+A straight emitter from ``p0`` to ``p1`` (a fluorescent tube, an LED strip, a cove
+light) whose intensity varies *around* its axis but not along it, as the thesis models
+tubes in housings and between baffles. Every element ``dx`` of the line emits in the
+unit direction ``e`` (from the line towards the receiver) the radiant intensity
+
+``dI = scale * color * J(theta) * cos(phi) * dx``  (W/sr),
+
+where ``phi`` is the angle between ``e`` and the plane perpendicular to the line (so
+``cos(phi) = |e_perp|``: the element's projected length, the ``a . a_perp`` factor of
+eq. 5.11) and ``theta`` the angle between ``e_perp`` and ``up_perp``, the component of
+``up`` perpendicular to the line: ``theta = 0`` emits towards ``up``, ``theta = pi``
+away from it (for a ceiling tube with ``up = +Z``: straight down). The profile is
+symmetric about ``up_perp`` (the thesis's assumption; real tubes in housings are).
+``J`` (W/(sr m)) is a table over ``theta`` in ``[0, pi]``: ``profile[k]`` at bin centre
+``theta_k = pi (k + 0.5) / n``, either constant per bin (``interpolation="constant"``,
+the basis the inverse renderer solves in) or linear between centres
+(``"linear"``, clamped at the ends; smoother renders).
+
+Irradiance on a receiver (normal ``n``) is therefore eq. 5.11 times ``J``:
+``E = integral J(theta) cos(phi) (n . -e) / r^2 dx``, and the emitted power is
+``scale * color * pi * length * integral_0^pi J(theta) dtheta``
+(:func:`line_light_power`).
+
+Sampling: next-event estimation picks a point uniformly along the line (pdf
+``1 / length``) and returns ``dI / r^2 * length``; the light has no area, so it is
+flagged as a delta position (BSDF-sampled rays never hit it, as with point lights).
+``sample_ray`` (light tracing) picks a uniform point and a uniform direction.
+
+Properties: ``p0``, ``p1`` (points), ``up`` (vector, default ``[0, 0, 1]``),
+``profile`` (``TensorXf`` of ``n >= 1`` values >= 0, or a float for a uniform line),
+``interpolation`` (``"linear"`` default, or ``"constant"``), ``color`` (3 floats),
+``scale`` (float).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+__all__ = ["LINE", "line_light", "line_light_power", "line_profile_value"]
+
+LINE = "reroom_line"
+
+
+def _perp_up(p0: np.ndarray, p1: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = p1 - p0
+    length = float(np.linalg.norm(t))
+    if not np.isfinite(length) or length <= 0:
+        raise ValueError(f"{LINE}: p0 and p1 must be distinct finite points")
+    t = t / length
+    u = up - (up @ t) * t
+    n = float(np.linalg.norm(u))
+    if n < 1e-6:
+        raise ValueError(f"{LINE}: 'up' must not be parallel to the line")
+    return t, u / n
+
+
+def line_profile_value(
+    profile: np.ndarray, theta: np.ndarray, interpolation: str = "linear"
+) -> np.ndarray:
+    """``J(theta)`` of a profile table (numpy twin of the emitter's lookup)."""
+    prof = np.atleast_1d(np.asarray(profile, np.float64))
+    n = len(prof)
+    f = np.clip(np.asarray(theta, np.float64), 0.0, math.pi) * (n / math.pi)
+    if interpolation == "constant" or n == 1:
+        return prof[np.minimum(f.astype(np.int64), n - 1)]
+    if interpolation != "linear":
+        raise ValueError(f"interpolation must be 'linear' or 'constant', not {interpolation!r}")
+    x = np.clip(f - 0.5, 0.0, n - 1.0)
+    i = np.minimum(x.astype(np.int64), n - 2)
+    w = x - i
+    return (1.0 - w) * prof[i] + w * prof[i + 1]
+
+
+def line_light_power(
+    profile: np.ndarray | float,
+    length: float,
+    scale: float = 1.0,
+    interpolation: str = "linear",
+    samples: int = 20001,
+) -> float:
+    """Emitted power (W, per unit ``color``) of a line light: ``pi L scale int J dtheta``."""
+    theta = np.linspace(0.0, math.pi, samples)
+    j = line_profile_value(np.atleast_1d(np.asarray(profile, np.float64)), theta, interpolation)
+    return float(math.pi * length * scale * np.trapezoid(j, theta))
+
+
+def line_light(
+    p0: Sequence[float],
+    p1: Sequence[float],
+    profile: np.ndarray | float,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
+    color: Sequence[float] = (1.0, 1.0, 1.0),
+    scale: float = 1.0,
+    interpolation: str = "linear",
+) -> dict[str, Any]:
+    """Build a ``reroom_line`` emitter dict for ``mi.load_dict`` (see the module docstring)."""
+    from reroom.render.emitters import register_emitters
+
+    mi = register_emitters()
+    a, b, u = (np.asarray(x, np.float64) for x in (p0, p1, up))
+    _perp_up(a, b, u)  # validates
+    prof = np.atleast_1d(np.asarray(profile, np.float64))
+    if prof.ndim != 1 or not np.all(np.isfinite(prof)) or np.any(prof < 0):
+        raise ValueError(f"{LINE}: profile must be a 1D table of finite values >= 0")
+    return {
+        "type": LINE,
+        "p0": a.tolist(),
+        "p1": b.tolist(),
+        "up": u.tolist(),
+        "profile": mi.TensorXf(prof.astype(np.float32)),
+        "interpolation": interpolation,
+        "color": [float(c) for c in color],
+        "scale": float(scale),
+    }
+
+
+def make_line_class(mi: ModuleType) -> type:
+    """Define the ``reroom_line`` plugin class for the current (JIT, RGB) variant."""
+    import drjit as dr
+
+    class LineEmitter(mi.Emitter):
+        """Generalized line light (see :mod:`reroom.render.line_emitter`)."""
+
+        def __init__(self, props: Any) -> None:
+            super().__init__(props)
+
+            def vec(name: str, default: Sequence[float] | None = None) -> np.ndarray:
+                if name in props:
+                    return np.array(props[name], dtype=np.float64).ravel()
+                if default is None:
+                    raise ValueError(f"{LINE}: missing property '{name}'")
+                return np.asarray(default, np.float64)
+
+            p0, p1 = vec("p0"), vec("p1")
+            up = vec("up", (0.0, 0.0, 1.0))
+            tangent, up_perp = _perp_up(p0, p1, up)
+            prof = (
+                np.atleast_1d(np.array(props["profile"], np.float64))
+                if "profile" in props
+                else np.ones(1)
+            )
+            if prof.ndim != 1 or not np.all(np.isfinite(prof)) or np.any(prof < 0):
+                raise ValueError(f"{LINE}: profile must be a 1D table of finite values >= 0")
+            interp = str(props["interpolation"]) if "interpolation" in props else "linear"
+            if interp not in ("linear", "constant"):
+                raise ValueError(f"{LINE}: interpolation must be 'linear' or 'constant'")
+            color = vec("color", (1.0, 1.0, 1.0))
+            scale = float(props["scale"]) if "scale" in props else 1.0
+
+            self._p0, self._p1 = p0, p1
+            self.length = float(np.linalg.norm(p1 - p0))
+            self.n_bins = len(prof)
+            self.linear = interp == "linear" and self.n_bins > 1
+            self.m_p0 = mi.Point3f(*map(float, p0))
+            self.m_dir = mi.Vector3f(*map(float, p1 - p0))
+            self.m_tangent = mi.Vector3f(*map(float, tangent))
+            self.m_up = mi.Vector3f(*map(float, up_perp))
+            self.m_side = mi.Vector3f(*map(float, np.cross(tangent, up_perp)))
+            self.m_profile = mi.Float(prof.astype(np.float32))
+            self.m_color = mi.Color3f(*[float(c) for c in np.broadcast_to(color, (3,))])
+            self.m_scale = mi.Float(scale * self.length)  # length = 1 / pdf of the point
+            dr.make_opaque(self.m_p0, self.m_dir, self.m_tangent, self.m_up, self.m_side)
+            dr.make_opaque(self.m_color, self.m_scale)
+            self.m_flags = mi.EmitterFlags.DeltaPosition
+
+        def _profile(self, e: Any, active: Any = True) -> Any:
+            """``J(theta) cos(phi)`` for unit emission directions ``e``."""
+            along = dr.dot(e, self.m_tangent)
+            cos_phi = dr.safe_sqrt(1.0 - dr.square(along))
+            # theta from the components of e_perp in the (up, side) plane; symmetric
+            # about up, so |side| suffices.
+            theta = dr.atan2(dr.abs(dr.dot(e, self.m_side)), dr.dot(e, self.m_up))
+            f = theta * (self.n_bins / math.pi)
+            if self.linear:
+                x = dr.clip(f - 0.5, 0.0, self.n_bins - 1.0)
+                i = dr.minimum(mi.UInt32(x), self.n_bins - 2)
+                w = x - mi.Float(i)
+                v0 = dr.gather(mi.Float, self.m_profile, i, active)
+                v1 = dr.gather(mi.Float, self.m_profile, i + 1, active)
+                value = dr.lerp(v0, v1, w)
+            else:
+                i = dr.minimum(mi.UInt32(dr.maximum(f, 0.0)), self.n_bins - 1)
+                value = dr.gather(mi.Float, self.m_profile, i, active)
+            return value * cos_phi
+
+        def _point(self, u: Any) -> Any:
+            return self.m_p0 + self.m_dir * u
+
+        def sample_direction(self, it: Any, sample: Any, active: Any = True) -> Any:
+            ds = dr.zeros(mi.DirectionSample3f)
+            ds.p = self._point(sample.x)
+            ds.n = mi.Normal3f(0.0)
+            ds.uv = mi.Point2f(sample.x, 0.0)
+            ds.time = it.time
+            ds.pdf = mi.Float(1.0)
+            ds.delta = mi.Bool(True)
+            ds.emitter = mi.EmitterPtr(self)
+            d = ds.p - it.p
+            dist2 = dr.squared_norm(d)
+            inv_dist = dr.rsqrt(dist2)
+            ds.d = d * inv_dist
+            ds.dist = dr.sqrt(dist2)
+            spec = self.m_color * (self._profile(-ds.d, active) * self.m_scale / dist2)
+            return ds, dr.select(active & (dist2 > 0), mi.Spectrum(spec), 0.0)
+
+        def pdf_direction(self, it: Any, ds: Any, active: Any = True) -> Any:
+            return mi.Float(0.0)
+
+        def eval_direction(self, it: Any, ds: Any, active: Any = True) -> Any:
+            d = ds.p - it.p
+            dist2 = dr.squared_norm(d)
+            e = -d * dr.rsqrt(dist2)
+            spec = self.m_color * (self._profile(e, active) * self.m_scale / dist2)
+            return dr.select(active, mi.Spectrum(spec), 0.0)
+
+        def eval(self, si: Any, active: Any = True) -> Any:
+            return mi.Spectrum(0.0)  # a line has no area: rays never hit it
+
+        def sample_position(self, time: Any, sample: Any, active: Any = True) -> Any:
+            ps = dr.zeros(mi.PositionSample3f)
+            ps.p = self._point(sample.x)
+            ps.time = time
+            ps.pdf = mi.Float(1.0)
+            ps.delta = mi.Bool(True)
+            return ps, mi.Float(1.0)
+
+        def pdf_position(self, ps: Any, active: Any = True) -> Any:
+            return mi.Float(0.0)
+
+        def sample_ray(
+            self, time: Any, sample1: Any, sample2: Any, sample3: Any, active: Any = True
+        ) -> Any:
+            # Uniform point on the line, uniform direction on the sphere.
+            p = self._point(sample2.x)
+            d = mi.warp.square_to_uniform_sphere(sample3)
+            weight = self.m_color * (self._profile(d, active) * self.m_scale * (4.0 * math.pi))
+            wavelengths = dr.zeros(mi.Color0f, dr.width(sample1)) if hasattr(mi, "Color0f") else 0
+            return mi.Ray3f(p, d, time, wavelengths), dr.select(active, mi.Spectrum(weight), 0.0)
+
+        def sample_wavelengths(self, si: Any, sample: Any, active: Any = True) -> Any:
+            wl = dr.zeros(type(si.wavelengths), dr.width(si.p))
+            e = dr.normalize(si.wi)
+            spec = self.m_color * (self._profile(e, active) * self.m_scale)
+            return wl, dr.select(active, mi.Spectrum(spec), 0.0)
+
+        def bbox(self) -> Any:
+            bb = mi.ScalarBoundingBox3f(mi.ScalarPoint3f(*[float(x) for x in self._p0]))
+            bb.expand(mi.ScalarPoint3f(*[float(x) for x in self._p1]))
+            return bb
+
+        def traverse(self, callback: Any) -> None:
+            callback.put("color", self.m_color, mi.ParamFlags.Differentiable)
+
+        def to_string(self) -> str:
+            return (
+                f"LineEmitter[p0={self._p0.tolist()}, p1={self._p1.tolist()}, "
+                f"bins={self.n_bins}, linear={self.linear}]"
+            )
+
+    return LineEmitter
