@@ -1,0 +1,122 @@
+"""Path-traced frames and per-vertex radiance from a Mitsuba scene.
+
+Both go through Mitsuba's ``path`` integrator, i.e. the same physically based
+light transport, never through reroom's own (inverse) light model -- later
+stages must not be tested on data made by their own assumptions. Used by the
+synthetic generator (frames and the per-vertex truth) and by the renders and
+baked lighting of edited room models.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from reroom.render import mitsuba
+from reroom.render.camera import mitsuba_to_world, perspective_sensor
+from reroom.scan.camera import Intrinsics
+
+
+class FrameRenderer:
+    """Renders many frames of one scene, re-posing a single sensor between frames.
+
+    Re-using the loaded scene lets Dr.Jit reuse its compiled kernels: after the
+    first frame, each frame costs only its samples.
+    """
+
+    def __init__(self, scene_dict: dict[str, Any], intr: Intrinsics, spp: int) -> None:
+        mi = mitsuba()
+        self.mi = mi
+        self.intr = intr
+        self.spp = spp
+        d = dict(scene_dict)
+        d["sensor"] = perspective_sensor(np.eye(4), intr, spp)
+        self.scene = mi.load_dict(d, optimize=False)
+        self.params = mi.traverse(self.scene)
+        if "sensor.to_world" not in self.params:
+            raise RuntimeError("this Mitsuba build does not expose sensor.to_world for updates")
+
+    def render(self, c2w: np.ndarray, seed: int) -> np.ndarray:
+        """Linear RGB radiance ``(H, W, 3)`` float32 for camera pose ``c2w`` (OpenGL axes)."""
+        mi = self.mi
+        self.params["sensor.to_world"] = mitsuba_to_world(c2w)
+        self.params.update()
+        img = mi.render(self.scene, spp=self.spp, seed=seed)
+        return np.asarray(img, dtype=np.float32)[..., :3]
+
+
+def probe_radiance(
+    scene: Any,
+    points: np.ndarray,
+    normals: np.ndarray,
+    spp: int,
+    seed: int = 0,
+    offset: float = 0.004,
+    jitter: float = 0.001,
+    batch_rays: int = 2_000_000,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Outgoing radiance of surface points toward their normals, by path tracing.
+
+    For each point a ray starts ``offset`` metres out along the normal and
+    looks back at the point, so the integrator returns the radiance leaving
+    the surface toward the normal direction (emission included). For diffuse
+    surfaces that is *the* radiance; for glossy ones it is the radiance seen
+    head-on.
+
+    Each sample's ray is shifted sideways by a random offset within ``jitter``
+    metres: a ray aimed exactly at a mesh vertex runs along the edges of the
+    triangles around it, and Mitsuba's (non-watertight) intersection test can
+    let it slip through, which would read as zero radiance.
+
+    Returns ``(mean, stderr)``, each ``(N, 3)``: the Monte-Carlo estimate and
+    its standard error (from the per-sample variance).
+    """
+    mi = mitsuba()
+    import drjit as dr
+
+    from reroom.rays.sampling import orthonormal_basis
+
+    points = np.asarray(points, np.float64)
+    normals = np.asarray(normals, np.float64)
+    normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    n = len(points)
+    rng = np.random.default_rng(seed)
+    integrator = scene.integrator()
+    total = np.zeros((n, 3))
+    total_sq = np.zeros((n, 3))
+    per_batch = max(1, batch_rays // max(spp, 1))
+    done = 0
+    for start in range(0, n, per_batch):
+        stop = min(n, start + per_batch)
+        m = stop - start
+        nrm = normals[start:stop]
+        t1, t2 = orthonormal_basis(nrm)
+        o = points[start:stop] + offset * nrm
+        o_rep = np.repeat(o, spp, axis=0)
+        r = jitter * np.sqrt(rng.random(m * spp))
+        phi = 2 * np.pi * rng.random(m * spp)
+        o_rep += (r * np.cos(phi))[:, None] * np.repeat(t1, spp, 0)
+        o_rep += (r * np.sin(phi))[:, None] * np.repeat(t2, spp, 0)
+        o_rep = o_rep.astype(np.float32)
+        d_rep = np.repeat(-nrm, spp, axis=0).astype(np.float32)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed * 7919 + start, m * spp)
+        ray = mi.Ray3f(mi.Point3f(*o_rep.T), mi.Vector3f(*d_rep.T))
+        ray.maxt = 2.0 * offset
+        # maxt bounds only the first segment: the first hit must be the point itself.
+        spec, _, _ = integrator.sample(scene, sampler, ray)
+        vals = np.asarray(spec, dtype=np.float64)
+        vals = vals.T if vals.shape[0] == 3 and vals.ndim == 2 else vals
+        vals = vals.reshape(m, spp, 3)
+        total[start:stop] = vals.sum(1)
+        total_sq[start:stop] = (vals**2).sum(1)
+        dr.flush_malloc_cache()
+        done += m
+        if progress is not None:
+            progress(done, n)
+    mean = total / spp
+    var = np.maximum(total_sq / spp - mean**2, 0.0)
+    return mean, np.sqrt(var / max(spp - 1, 1))
