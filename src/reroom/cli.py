@@ -263,6 +263,146 @@ def layout(
 
 
 @app.command()
+def lights(
+    scan: Annotated[Path, typer.Argument(help="Scan folder.")],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/lights).")
+    ] = None,
+    hdr_dir: Annotated[
+        Path | None, typer.Option("--hdr", help="Output of `reroom hdr` (default SCAN/hdr).")
+    ] = None,
+    layout_dir: Annotated[
+        Path | None,
+        typer.Option("--layout", help="Output of `reroom layout` (default SCAN/layout)."),
+    ] = None,
+    threshold: Annotated[
+        float | None,
+        typer.Option(help="Absolute HDR luminance threshold (default: automatic)."),
+    ] = None,
+    threshold_factor: Annotated[
+        float, typer.Option(help="Automatic threshold: this x the median wall/ceiling luminance.")
+    ] = 8.0,
+    min_vertices: Annotated[int, typer.Option(help="Smallest candidate, vertices.")] = 50,
+    consistency: Annotated[
+        bool, typer.Option(help="Reject view-dependent candidates (specular highlights).")
+    ] = True,
+    require_layout: Annotated[
+        bool,
+        typer.Option(help="Fail without layout.json (--no-require-layout: go on without a room)."),
+    ] = True,
+    add_point: Annotated[
+        list[str] | None, typer.Option(help="Add a point light: x,y,z[,name] (repeatable).")
+    ] = None,
+    remove: Annotated[list[str] | None, typer.Option(help="Remove a light by name.")] = None,
+    move: Annotated[list[str] | None, typer.Option(help="Move a light: NAME=x,y,z.")] = None,
+    retype: Annotated[
+        list[str] | None, typer.Option(help="Change a light's type: NAME=area|window|line|point.")
+    ] = None,
+    edit: Annotated[
+        Path | None, typer.Option(help="A lights_edit.json of add/remove/move/retype.")
+    ] = None,
+) -> None:
+    """Light detection: area lights, windows, line lights, point lights, with reasons (thesis 5.5)."""
+    import numpy as np
+
+    from reroom.lights import (
+        LightsOptions,
+        apply_edits,
+        check_user_lights,
+        detect_lights,
+        edits_from_options,
+        load_edits,
+        merge_edits,
+        write_lights,
+    )
+
+    out = out or scan / "lights"
+    opts = LightsOptions(
+        threshold=threshold,
+        threshold_factor=threshold_factor,
+        min_vertices=min_vertices,
+        view_consistency=consistency,
+        require_layout=require_layout,
+    )
+    with _errors(), _progress() as cb:
+        result = detect_lights(scan, hdr_dir, layout_dir, opts, progress=cb)
+        user = edits_from_options(add_point, remove, move, retype)
+        edits = merge_edits(load_edits(edit), user) if edit else user
+        apply_edits(result, edits, up=np.asarray(result.meta.get("up", [0, 0, 1])))
+        check_user_lights(result)
+        write_lights(result, out)
+    table = Table(title=f"{len(result.lights)} lights, {len(result.rejected)} rejected")
+    for col in ("name", "type", "source", "reason"):
+        table.add_column(col)
+    for light in result.lights:
+        table.add_row(light.name, light.type, light.source, light.reason)
+    console.print(table)
+    for note in result.notes:
+        console.print(f"[yellow]note:[/] {note}")
+    console.print(f"[green]wrote[/] {out}")
+
+
+@app.command()
+def localize(
+    scan: Annotated[
+        Path, typer.Argument(help="Scan folder (after `reroom hdr` and `reroom layout`).")
+    ],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/localize).")
+    ] = None,
+    time_limit: Annotated[float, typer.Option(help="Seconds for the search.")] = 900.0,
+) -> None:
+    """Point lights from the light on the walls: positions and intensities (thesis ch. 6)."""
+    from reroom.localize.scan import ScanLocalizeOptions, localize_scan, write_localized_lights
+
+    out = out or scan / "localize"
+    with _errors():
+        res, info = localize_scan(scan, ScanLocalizeOptions(time_limit=time_limit))
+        path = write_localized_lights(res, info, out)
+    if not res.success:
+        console.print(f"[yellow]note:[/] did not converge ({res.reason}); wrote the last lights")
+    for p, i in zip(res.positions, res.intensities, strict=True):
+        console.print(f"point light at {p.round(3).tolist()} m, intensity {i:.3g} (x albedo)")
+    console.print(f"[green]wrote[/] {path}")
+
+
+@app.command()
+def invert(
+    scan: Annotated[Path, typer.Argument(help="Scan folder (with hdr/, layout/, lights/).")],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/invert).")
+    ] = None,
+    method: Annotated[str, typer.Option(help="Solver: joint | alternating.")] = "joint",
+    rays: Annotated[int, typer.Option(help="Hemisphere rays per receiving vertex.")] = 512,
+    voxel: Annotated[
+        float, typer.Option(help="One hemisphere receiver per voxel of this size, m (0: all).")
+    ] = 0.1,
+    pictures: Annotated[bool, typer.Option(help="Write diagrams and cube-map pictures.")] = True,
+) -> None:
+    """Inverse rendering: light intensities and distributions, albedos (thesis ch. 5)."""
+    from reroom.invert.pipeline import InvertOptions, run_invert
+    from reroom.invert.solve import SolveOptions
+
+    opts = InvertOptions(
+        rays_per_receiver=rays,
+        receiver_voxel=voxel,
+        solve=SolveOptions(method=method),  # type: ignore[arg-type]
+        pictures=pictures,
+    )
+    with _errors(), _progress() as cb:
+        result = run_invert(scan, out, opts, progress=cb)
+    table = Table(title="materials")
+    for col in ("cluster", "albedo r", "albedo g", "albedo b"):
+        table.add_column(col)
+    for name, rho in zip(result.cluster_names, result.solve.albedo, strict=True):
+        table.add_row(name, *(f"{x:.3f}" for x in rho))
+    console.print(table)
+    for note in result.warnings:
+        console.print(f"[yellow]note:[/] {note}")
+    console.print(f"[green]wrote[/] {result.out_dir}")
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the demo's outputs.")] = Path(
         "out/demo"

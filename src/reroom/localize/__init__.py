@@ -14,7 +14,9 @@ Layout:
 * :mod:`~reroom.localize.scene2d`, :mod:`~reroom.localize.fields`: 2D rooms with exact
   occlusion, and the scene transforms on a pixel grid;
 * :mod:`~reroom.localize.bench2d`, :mod:`~reroom.localize.plot`: the thesis's synthetic 2D
-  dataset and evaluation (Table 6.1), and pictures of the fields.
+  dataset and evaluation (Table 6.1), and pictures of the fields;
+* :mod:`~reroom.localize.fields3d`, :mod:`~reroom.localize.scene3d`: the scene transforms on
+  a voxel grid, the 3D candidate proposer, and box rooms (Table 6.2).
 """
 
 from reroom.localize.bench2d import (
@@ -37,6 +39,12 @@ from reroom.localize.fields import (
     limiter_count_field,
     medial_axis,
     voting_field,
+)
+from reroom.localize.fields3d import (
+    VoxelGrid,
+    find_peaks_3d,
+    intensity_distance_field_3d,
+    limiter_count_3d,
 )
 from reroom.localize.measurements import (
     LocalizeError,
@@ -64,6 +72,13 @@ from reroom.localize.scene2d import (
     shot_noise,
     visibility_2d,
 )
+from reroom.localize.scene3d import (
+    FieldProposer3D,
+    VoteParams3D,
+    box_light_bounds,
+    box_measurements,
+    box_valid_mask,
+)
 from reroom.localize.solve import (
     fit_lights,
     fit_lights_lm,
@@ -76,6 +91,7 @@ __all__ = [
     "THESIS_TABLE_6_1",
     "FieldGrid",
     "FieldProposer2D",
+    "FieldProposer3D",
     "LocalizeError",
     "LocalizeResult",
     "Measurements",
@@ -84,14 +100,22 @@ __all__ = [
     "Scene2D",
     "SceneResult",
     "VoteParams",
+    "VoteParams3D",
+    "VoxelGrid",
     "WallSamples",
     "associate",
+    "box_light_bounds",
+    "box_measurements",
     "box_room",
+    "box_valid_mask",
     "evaluate_scene",
     "find_candidates",
+    "find_peaks_3d",
     "fit_lights",
     "fit_lights_lm",
     "intensity_distance_field",
+    "intensity_distance_field_3d",
+    "limiter_count_3d",
     "limiter_count_field",
     "localize_lights",
     "make_scene",

@@ -48,7 +48,6 @@ from reroom.localize.scene2d import (
     sample_walls,
     shot_noise,
 )
-from reroom.localize.solve import mean_squared_error
 
 __all__ = [
     "THESIS_TABLE_6_1",
@@ -154,9 +153,12 @@ def matches_truth(
     intensity_tolerance: float = 0.1,
 ) -> bool:
     """Whether found lights are the true ones: same count, and a one-to-one matching in
-    which every light is within ``position_tolerance`` and relative ``intensity_tolerance``."""
-    p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
-    t = np.asarray(true_positions, dtype=np.float64).reshape(-1, 2)
+    which every light is within ``position_tolerance`` and relative ``intensity_tolerance``.
+    Positions may be 2D or 3D (the dimension of ``true_positions``)."""
+    t = np.asarray(true_positions, dtype=np.float64)
+    dim = t.shape[-1] if t.ndim == 2 else 2
+    t = t.reshape(-1, dim)
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, dim)
     if p.shape[0] != t.shape[0]:
         return False
     cost = np.linalg.norm(p[:, None, :] - t[None, :, :], axis=-1)
@@ -251,9 +253,3 @@ def summarize(results: list[SceneResult]) -> dict[tuple[str, int], dict[str, flo
             "max_s": float(np.max(secs)),
         }
     return out
-
-
-def truth_error(scene: Scene2D) -> float:
-    """Mean squared error of the true lights (a check: zero without noise)."""
-    meas = scene.samples.measurements(scene.values)
-    return mean_squared_error(meas, scene.positions, scene.intensities)

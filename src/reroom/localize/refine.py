@@ -298,7 +298,14 @@ def localize_lights(
     return result(False, "iteration limit", prm.max_iterations)
 
 
-def _select(meas, sol, bounds, tolerance, prm, visibility):
+def _select(
+    meas: Measurements,
+    sol: tuple[np.ndarray, np.ndarray, float],
+    bounds: tuple[ArrayLike, ArrayLike],
+    tolerance: float,
+    prm: RefineParams,
+    visibility: Visibility | None,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Prune, split clusters, prune again (see ``RefineParams.select``)."""
     pos, inten, err = prune_lights(meas, *sol[:2], bounds, tolerance, visibility)
     pos2, inten2, err2 = split_lights(meas, pos, inten, bounds, prm.match_distance, visibility)

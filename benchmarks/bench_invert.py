@@ -1,0 +1,124 @@
+"""Benchmark of the eq. 5.7 solve (``reroom.invert.solve``) and of ``reroom invert``.
+
+Part 1 (always): the solvers on synthetic problems with a known answer
+(:func:`reroom.invert.synthetic.synthetic_problem`: an area light, a 96-cell window, a
+32-bin point light and a 32-bin line light), exact and with 2 % noise and 10 % outlier
+vertices: time, iterations, worst relative cluster-albedo error and worst relative L2
+error of the seen basis intensities.
+
+Part 2 (``--scan DIR [--true-radiance]``): the pipeline on a scan with hdr/, layout/,
+lights/ and ground truth, evaluated by :func:`reroom.invert.evaluate.evaluate_invert`
+against the issue's targets (albedo within 3 %, power within 5 %).
+
+    .venv/bin/python benchmarks/bench_invert.py [--n 20000] [--scan DIR] [--true-radiance]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from reroom.invert.solve import SolveOptions, solve_lighting
+from reroom.invert.synthetic import synthetic_problem
+
+
+def _errors(result, truth) -> tuple[float, float]:
+    rho = float(np.nanmax(np.abs(result.albedo / truth.albedo - 1)))
+    worst = 0.0
+    for name, true in truth.intensities.items():
+        seen = truth.seen[name]
+        est = result.intensities[name][seen]
+        worst = max(worst, float(np.linalg.norm(est - true[seen]) / np.linalg.norm(true[seen])))
+    return rho, worst
+
+
+def solver_table(n: int) -> None:
+    cases = [
+        ("exact, area+window", dict(lights=("area", "window")), dict(huber_delta=None)),
+        ("exact, all four", dict(), dict(huber_delta=None)),
+        ("2% noise, 10% outliers, all four", dict(noise=0.02, outlier_fraction=0.1), {}),
+    ]
+    methods = [
+        ("joint (LM, dense normal eq.)", dict(method="joint", inner="lm")),
+        ("joint (scipy trf + LSMR)", dict(method="joint", inner="trf")),
+        ("alternating (NNLS / closed form)", dict(method="alternating", max_iterations=100)),
+    ]
+    print(f"### Solvers on synthetic problems, {n} vertices\n")
+    print(f"load average before: {os.getloadavg()}\n")
+    print(
+        "| problem | solver | time (s) | iterations | converged | max albedo err | max light L2 err |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for label, pkw, okw in cases:
+        problem, truth = synthetic_problem(n, seed=1, **pkw)
+        for mlabel, mkw in methods:
+            opts = SolveOptions(reweight_c=None, max_vertices=None, **okw, **mkw)
+            t = time.perf_counter()
+            result = solve_lighting(problem, opts)
+            dt = time.perf_counter() - t
+            rho, light = _errors(result, truth)
+            print(
+                f"| {label} | {mlabel} | {dt:.2f} | {result.iterations} | {result.converged} "
+                f"| {rho:.2e} | {light:.2e} |"
+            )
+    print(f"\nload average after: {os.getloadavg()}\n")
+
+
+def huber_table(n: int) -> None:
+    problem, truth = synthetic_problem(n, seed=2, noise=0.02, outlier_fraction=0.1)
+    print(f"### Huber threshold, {n} vertices, 2% noise, 10% outliers (joint LM)\n")
+    print("| huber delta | time (s) | rounds | max albedo err | max light L2 err |")
+    print("|---|---|---|---|---|")
+    for delta in (None, 0.1, 0.05, 0.02):
+        t = time.perf_counter()
+        result = solve_lighting(problem, SolveOptions(huber_delta=delta, reweight_c=None))
+        rho, light = _errors(result, truth)
+        dt = time.perf_counter() - t
+        print(f"| {delta} | {dt:.2f} | {len(result.history)} | {rho:.3f} | {light:.3f} |")
+    print(f"\nload average: {os.getloadavg()}\n")
+
+
+def scan_table(scan: str, true_radiance: bool) -> None:
+    from reroom.invert.evaluate import evaluate_invert, run_invert_true_radiance
+    from reroom.invert.pipeline import InvertOptions, run_invert
+
+    out = os.path.join(scan, "invert_true" if true_radiance else "invert")
+    t = time.perf_counter()
+    run = run_invert_true_radiance if true_radiance else run_invert
+    result = run(scan, out, InvertOptions())
+    dt = time.perf_counter() - t
+    ev = evaluate_invert(scan, out)
+    kind = "TRUE radiance (evaluation-only)" if true_radiance else "HDR radiance"
+    print(f"### `reroom invert` on {scan} ({kind})\n")
+    print(f"total {dt:.1f} s, load {os.getloadavg()}; timings {result.timings}\n")
+    print("| cluster | relative albedo error (r, g, b) | target |")
+    print("|---|---|---|")
+    for name, c in ev["clusters"].items():
+        err = ", ".join(f"{x:+.1%}" for x in c.get("relative_error", []))
+        print(f"| {name} | {err} | 3 % |")
+    print("\n| light | truth | power error (r, g, b) | target |")
+    print("|---|---|---|---|")
+    for light in ev["lights"]:
+        err = light.get("power_relative_error")
+        text = ", ".join(f"{x:+.1%}" for x in err) if err else light.get("note", "")
+        print(f"| {light['name']} | {light.get('truth')} | {text} | 5 % |")
+    print(f"\nper-vertex albedo: {ev['per_vertex']}; missed lights: {ev['missed_lights']}\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--n", type=int, default=5000)
+    ap.add_argument("--scan", default=None)
+    ap.add_argument("--true-radiance", action="store_true")
+    args = ap.parse_args()
+    solver_table(args.n)
+    huber_table(args.n)
+    if args.scan:
+        scan_table(args.scan, args.true_radiance)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""Numba kernels of the hemisphere transfer: ray generation and per-ray accumulation.
+
+Plain single-threaded loops (the ray casting between them already uses every
+core); ``cache=True`` keeps the compiled code between runs. Their logic is that
+of :func:`reroom.rays.sample_hemisphere` (jittered grid, concentric map, Duff et
+al.'s frame) and :func:`reroom.invert.windows.rays_through_windows`, which stay
+the readable references (``tests/test_invert_transfer.py`` compares them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def hemisphere_rays(
+    starts: np.ndarray, normals: np.ndarray, nx: int, ny: int, jitter: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cosine-weighted rays, ``nx * ny`` per point on a jittered grid.
+
+    ``jitter`` is ``(n * nx * ny, 2)`` uniform in ``[0, 1)``. Returns ``(origins,
+    directions)``, each ``(n * nx * ny, 3)``, point-major.
+    """
+    n = starts.shape[0]
+    per = nx * ny
+    org = np.empty((n * per, 3))
+    out = np.empty((n * per, 3))
+    for i in range(n):
+        zx, zy, zz = normals[i, 0], normals[i, 1], normals[i, 2]
+        s = 1.0 if zz >= 0.0 else -1.0
+        a = -1.0 / (s + zz)
+        b = zx * zy * a
+        tx, ty, tz = 1.0 + s * zx * zx * a, s * b, -s * zx
+        bx, by, bz = b, s + zy * zy * a, -zy
+        for k in range(per):
+            r = i * per + k
+            u1 = ((k % nx) + jitter[r, 0]) / nx * 2.0 - 1.0
+            u2 = ((k // nx) + jitter[r, 1]) / ny * 2.0 - 1.0
+            if u1 == 0.0 and u2 == 0.0:
+                dx, dy = 0.0, 0.0
+            elif abs(u1) > abs(u2):
+                phi = (math.pi / 4.0) * (u2 / u1)
+                dx, dy = u1 * math.cos(phi), u1 * math.sin(phi)
+            else:
+                phi = math.pi / 2.0 - (math.pi / 4.0) * (u1 / u2)
+                dx, dy = u2 * math.cos(phi), u2 * math.sin(phi)
+            dz = math.sqrt(max(0.0, 1.0 - dx * dx - dy * dy))
+            out[r, 0] = dx * tx + dy * bx + dz * zx
+            out[r, 1] = dx * ty + dy * by + dz * zy
+            out[r, 2] = dx * tz + dy * bz + dz * zz
+            org[r, 0] = starts[i, 0]
+            org[r, 1] = starts[i, 1]
+            org[r, 2] = starts[i, 2]
+    return org, out
+
+
+@nb.njit(cache=True)
+def accumulate(
+    rays_per_point: int,
+    org: np.ndarray,
+    dirs: np.ndarray,
+    t_hit: np.ndarray,
+    face: np.ndarray,
+    uv: np.ndarray,
+    faces: np.ndarray,
+    face_normals: np.ndarray,
+    vdata: np.ndarray,
+    win_centre: np.ndarray,
+    win_u: np.ndarray,
+    win_v: np.ndarray,
+    win_hu: np.ndarray,
+    win_hv: np.ndarray,
+    win_normal: np.ndarray,
+    tolerance: float,
+    ind: np.ndarray,
+    p_obs: np.ndarray,
+    p_unobs: np.ndarray,
+    p_light: np.ndarray,
+    area: np.ndarray,
+    through: np.ndarray,
+    pane: np.ndarray,
+) -> None:
+    """Classify each ray and add its shares to its point's sums (see ``transfer.py``).
+
+    ``vdata`` is ``(V, 8)`` per mesh vertex: radiance times the surface weight (3),
+    surface weight (1 for observed non-light vertices), unobserved weight, area light
+    (-1: none), window (-1: none), padding -- packed so that a corner costs one cache
+    line rather than seven scattered reads.
+
+    Writes ``through[r]`` (window crossed, or -1) and ``pane[r]`` (whether a
+    front hit touches a window-flagged vertex: those shares are left to the caller,
+    which knows the distant basis). Sums are raw counts (not yet divided by R).
+    """
+    n_win = win_centre.shape[0]
+    for r in range(dirs.shape[0]):
+        p = r // rays_per_point
+        dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+        th = t_hit[r]
+        # Window openings crossed before the hit (rays_through_windows).
+        best, best_t = -1, np.inf
+        for w in range(n_win):
+            denom = dx * win_normal[w, 0] + dy * win_normal[w, 1] + dz * win_normal[w, 2]
+            if denom >= -1e-9:
+                continue
+            t = (
+                (win_centre[w, 0] - org[r, 0]) * win_normal[w, 0]
+                + (win_centre[w, 1] - org[r, 1]) * win_normal[w, 1]
+                + (win_centre[w, 2] - org[r, 2]) * win_normal[w, 2]
+            ) / denom
+            if not (t > 0.0 and t <= th + tolerance and t < best_t):
+                continue
+            rx = org[r, 0] + t * dx - win_centre[w, 0]
+            ry = org[r, 1] + t * dy - win_centre[w, 1]
+            rz = org[r, 2] + t * dz - win_centre[w, 2]
+            su = abs(rx * win_u[w, 0] + ry * win_u[w, 1] + rz * win_u[w, 2]) - win_hu[w]
+            sv = abs(rx * win_v[w, 0] + ry * win_v[w, 1] + rz * win_v[w, 2]) - win_hv[w]
+            inside = su <= 0.0 and sv <= 0.0
+            margin = su <= tolerance and sv <= tolerance and th > t + tolerance
+            if inside or margin:
+                best, best_t = w, t
+        through[r] = best
+        pane[r] = False
+        if best >= 0:
+            p_light[p] += 1.0
+            continue
+        f = face[r]
+        if f < 0:
+            p_unobs[p] += 1.0
+            continue
+        if face_normals[f, 0] * dx + face_normals[f, 1] * dy + face_normals[f, 2] * dz >= 0.0:
+            p_unobs[p] += 1.0  # back face (or edge-on)
+            continue
+        u, v = uv[r, 0], uv[r, 1]
+        for k in range(3):
+            c = faces[f, k]
+            bk = 1.0 - u - v if k == 0 else (u if k == 1 else v)
+            ind[p, 0] += bk * vdata[c, 0]
+            ind[p, 1] += bk * vdata[c, 1]
+            ind[p, 2] += bk * vdata[c, 2]
+            p_obs[p] += bk * vdata[c, 3]
+            p_unobs[p] += bk * vdata[c, 4]
+            a = int(vdata[c, 5])
+            if a >= 0:
+                area[p, a] += bk
+                p_light[p] += bk
+            if vdata[c, 6] >= 0:
+                pane[r] = True
+                p_light[p] += bk

@@ -1,0 +1,314 @@
+"""Outputs of ``reroom invert``: ``scene.json``, ``albedo.ply``, IES, EXR, pictures, report.
+
+Every file is written atomically; ``scene.json`` is written last, so a folder with a
+``scene.json`` is complete. Units are those of the HDR mesh (its radiance is relative:
+the HDR stage fixes the scale by one reference frame), so light intensities and powers
+share that unknown global factor while albedos do not.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from reroom.invert.basis import CubemapBasis
+from reroom.io.atomic import atomic_path, atomic_write_json
+from reroom.io.ies import IESProfile, write_ies
+from reroom.io.images import write_exr
+from reroom.io.mesh import write_ply
+
+__all__ = [
+    "area_light_power",
+    "inclination_power",
+    "latlong_from_cubemap",
+    "line_light_power",
+    "window_power",
+    "write_outputs",
+]
+
+FORMAT = "reroom-invert"
+VERSION = 1
+
+
+def inclination_power(profile: np.ndarray) -> np.ndarray:
+    """Radiant flux of a point light with a piecewise constant profile in ``theta``.
+
+    Parameters
+    ----------
+    profile : ndarray, shape (bins,) or (bins, 3)
+        Intensity (per steradian) of each equal bin of ``theta in [0, pi]``.
+
+    Returns
+    -------
+    ndarray
+        ``sum_i I_i * 2 pi (cos theta_i - cos theta_{i+1})``.
+    """
+    bins = len(profile)
+    edges = np.linspace(0.0, np.pi, bins + 1)
+    solid = 2 * np.pi * (np.cos(edges[:-1]) - np.cos(edges[1:]))
+    return np.tensordot(solid, np.asarray(profile, float), axes=(0, 0))
+
+
+def line_light_power(profile: np.ndarray, length: float) -> np.ndarray:
+    """Radiant flux of a line light of eq. 5.11 (intensity per metre, symmetric in ``theta``).
+
+    A piece ``dx`` sends ``i(theta) cos(phi) dx`` per steradian toward a direction at
+    angle ``phi`` from the plane perpendicular to the line; integrating ``cos^2 phi`` over
+    ``phi`` gives ``pi / 2``, and ``theta`` covers ``[0, pi]`` on both sides of the line.
+    """
+    bins = len(profile)
+    dtheta = np.pi / bins
+    return length * np.pi * dtheta * np.sum(np.asarray(profile, float), axis=0)
+
+
+def area_light_power(radiance: np.ndarray, area: float) -> np.ndarray:
+    """Flux of a one-sided Lambertian emitter: ``pi * L * A``."""
+    return np.pi * np.asarray(radiance, float) * area
+
+
+def _sphere_directions(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    d = rng.standard_normal((n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def window_power(
+    cells: np.ndarray, basis: CubemapBasis, normal: np.ndarray, area: float, samples: int = 200000
+) -> np.ndarray:
+    """Flux entering through a window whose distant light is ``cells``.
+
+    ``cells[j]`` is the radiance arriving from outside along the directions of cell ``j``
+    (a ray from the room leaving in direction ``d`` sees ``cells[cell_of(d)]``); the flux
+    is ``A * integral L(d) max(0, -d . n_in) dw``, by ``samples`` seeded directions.
+    """
+    d = _sphere_directions(samples)
+    cos = np.maximum(-(d @ np.asarray(normal, float)), 0.0)
+    j = basis.cell_of(d)
+    return area * 4 * np.pi / samples * np.tensordot(cos, np.asarray(cells)[j], axes=(0, 0))
+
+
+def latlong_from_cubemap(cells: np.ndarray, basis: CubemapBasis, height: int = 64) -> np.ndarray:
+    """An equirectangular ``(height, 2 height, 3)`` image of a cube-map basis light.
+
+    Zenith at the top row, the image centre looking along +X, ``u = 0.5 - atan2(y, x) /
+    2 pi`` (the convention of the ground truth's HDRIs).
+    """
+    h, w = height, 2 * height
+    v = (np.arange(h) + 0.5) / h
+    u = (np.arange(w) + 0.5) / w
+    theta = v * np.pi
+    phi = (0.5 - u) * 2 * np.pi
+    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
+    d = np.stack(
+        np.broadcast_arrays(st * np.cos(phi)[None, :], st * np.sin(phi)[None, :], ct), axis=-1
+    )
+    return np.asarray(cells)[basis.cell_of(d.reshape(-1, 3))].reshape(h, w, 3)
+
+
+def _ies_profile(profile: np.ndarray, name: str, kind: str) -> IESProfile:
+    """Axially symmetric LM-63 table; vertical angle 0 is the nadir (-axis)."""
+    bins = len(profile)
+    centres = (np.arange(bins) + 0.5) / bins * 180.0  # theta from the light's axis
+    nadir = 180.0 - centres[::-1]
+    values = np.asarray(profile, float)[::-1]
+    vertical = np.concatenate([[0.0], nadir, [180.0]])
+    table = np.concatenate([[values[0]], values, [values[-1]]])
+    return IESProfile(
+        vertical_angles=vertical,
+        horizontal_angles=np.array([0.0, 360.0]),
+        candela=np.stack([table, table]),
+        keywords={
+            "TEST": "reroom invert",
+            "MANUFAC": "reroom",
+            "LUMINAIRE": f"{kind} light {name} (relative radiometric units, not candela)",
+        },
+        symmetry="axial",
+    )
+
+
+def _goniometric_plot(path: Path, profile: np.ndarray, color: np.ndarray, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bins = len(profile)
+    theta = (np.arange(bins) + 0.5) / bins * np.pi
+    fig = plt.figure(figsize=(4, 4))
+    ax = fig.add_subplot(projection="polar")
+    ax.set_theta_zero_location("N")
+    c = np.clip(color / max(color.max(), 1e-12), 0, 1)
+    for sign in (1, -1):
+        ax.plot(sign * np.r_[theta, theta[-1]], np.r_[profile, profile[-1]], color=c * 0.8)
+    ax.set_title(title, fontsize=9)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, bbox_inches="tight", format="png")
+    plt.close(fig)
+
+
+def _cubemap_plot(path: Path, latlong: np.ndarray, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    img = latlong / max(float(np.percentile(latlong, 99)), 1e-12)
+    img = np.clip(img, 0, 1) ** (1 / 2.2)
+    fig, ax = plt.subplots(figsize=(6, 3.3))
+    ax.imshow(img, extent=(180, -180, 180, 0), aspect="auto")  # zenith on top
+    ax.set_xlabel("azimuth (deg, +X at 0)")
+    ax.set_ylabel("angle from zenith (deg)")
+    ax.set_title(title, fontsize=9)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, bbox_inches="tight", format="png")
+    plt.close(fig)
+
+
+def _length(g: dict) -> float:
+    return float(np.linalg.norm(np.asarray(g["p1"], float) - np.asarray(g["p0"], float)))
+
+
+def _window_area(g: dict) -> float:
+    return float(4 * np.linalg.norm(np.asarray(g["half_u"], float)) * np.linalg.norm(g["half_v"]))
+
+
+def light_entries(result, out: Path | None) -> list[dict[str, Any]]:
+    """The ``lights`` list of ``scene.json`` (and the files it references, if ``out``)."""
+    entries = []
+    basis = CubemapBasis(result.cubemap_n)
+    for block, info in zip(result.lights, result.light_info, strict=True):
+        g = info["geometry"]
+        values = result.solve.intensities[block.name]
+        share = result.solve.light_share.get(block.name, 0.0)
+        e: dict[str, Any] = {"name": block.name, "type": block.kind, "geometry": g}
+        if block.kind == "area":
+            e["radiance"] = values[0].tolist()
+            e["power"] = area_light_power(values[0], float(g.get("area", 0.0))).tolist()
+        elif block.kind == "window":
+            n_in = np.asarray(g["normal"], float)
+            e["distribution"] = {
+                "basis": "cubemap",
+                "n": result.cubemap_n,
+                "cells": values.tolist(),
+                "direction_convention": "cell of the direction a ray from the room leaves in",
+            }
+            e["power"] = window_power(values, basis, n_in, _window_area(g)).tolist()
+            if out is not None:
+                ll = latlong_from_cubemap(values, basis)
+                write_exr(out / f"window_{block.name}.exr", ll)
+                e["environment_exr"] = f"window_{block.name}.exr"
+        else:
+            profile = result.solve.profiles[block.name]
+            color = result.solve.colors[block.name]
+            e["color"] = color.tolist()
+            e["distribution"] = {
+                "basis": "inclination",
+                "bins": len(profile),
+                "profile": profile.tolist(),
+                "theta": "from the axis"
+                if block.kind == "point"
+                else "around the line from d_perp",
+            }
+            if block.kind == "point":
+                e["power"] = (inclination_power(profile) * color).tolist()
+            else:
+                e["power"] = (line_light_power(profile, _length(g)) * color).tolist()
+            if out is not None:
+                write_ies(out / f"{block.name}.ies", _ies_profile(profile, block.name, block.kind))
+                e["ies"] = f"{block.name}.ies"
+        e["share_of_irradiance"] = share
+        e["explains_nothing"] = bool(share < 1e-3)
+        entries.append(e)
+    return entries
+
+
+def write_outputs(
+    result, mesh: trimesh.Trimesh, out: Path, meta: dict[str, Any], pictures: bool = True
+) -> Path:
+    """Write every output of ``reroom invert`` into ``out``; returns ``scene.json``'s path."""
+    out.mkdir(parents=True, exist_ok=True)
+    flags = result.flags
+    attrs = {
+        "albedo": np.nan_to_num(result.albedo, nan=-1.0).astype(np.float32),
+        "in_cluster": flags["in_cluster"].astype(np.uint8),
+        "solved_per_vertex": flags["solved_per_vertex"].astype(np.uint8),
+        "nonphysical": flags["nonphysical"].astype(np.uint8),
+        "unobserved": flags["unobserved"].astype(np.uint8),
+        "light": flags["light"].astype(np.uint8),
+    }
+    write_ply(out / "albedo.ply", trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), attrs)
+    lights = light_entries(result, out)
+    solve = result.solve
+    pics = []
+    if pictures:
+        for e in lights:
+            if e["type"] in ("point", "line"):
+                p = f"gonio_{e['name']}.png"
+                _goniometric_plot(
+                    out / p,
+                    np.asarray(e["distribution"]["profile"]),
+                    np.asarray(e["color"]),
+                    f"{e['type']} light {e['name']}: intensity vs angle",
+                )
+                pics.append(p)
+            elif e["type"] == "window":
+                p = f"window_{e['name']}.png"
+                basis = CubemapBasis(result.cubemap_n)
+                ll = latlong_from_cubemap(np.asarray(e["distribution"]["cells"]), basis)
+                _cubemap_plot(out / p, ll, f"window {e['name']}: solved distant light")
+                pics.append(p)
+    clusters = []
+    for i, name in enumerate(result.cluster_names):
+        clusters.append(
+            {
+                "name": name,
+                "albedo": None if not solve.cluster_used[i] else solve.albedo[i].tolist(),
+                "solved": bool(solve.cluster_used[i]),
+            }
+        )
+    res = solve.residual
+    finite = np.isfinite(res).all(axis=1)
+    report = {
+        "method": solve.method,
+        "iterations": solve.iterations,
+        "converged": solve.converged,
+        "objective": solve.objective,
+        "history": solve.history,
+        "seconds": solve.seconds,
+        "timings_s": result.timings,
+        "residual": {
+            "rms": res[finite].std(axis=0).tolist() if finite.any() else None,
+            "median_abs": np.median(np.abs(res[finite]), axis=0).tolist() if finite.any() else None,
+        },
+        "weights": {
+            "mean": solve.weights[finite].mean(axis=0).tolist() if finite.any() else None,
+            "below_0.1": float(np.mean(solve.weights[finite].mean(axis=1) < 0.1))
+            if finite.any()
+            else None,
+        },
+        "vertices": {
+            "in_cluster": int(flags["in_cluster"].sum()),
+            "solved_per_vertex": int(flags["solved_per_vertex"].sum()),
+            "nonphysical": int(flags["nonphysical"].sum()),
+            "unobserved": int(flags["unobserved"].sum()),
+        },
+        "warnings": result.warnings,
+        **meta,
+    }
+    atomic_write_json(out / "report.json", report)
+    scene = {
+        "format": FORMAT,
+        "version": VERSION,
+        "units": {"length": "m", "radiance": "relative (the HDR mesh's)"},
+        "complete": not any("left out" in w or "no observed" in w for w in result.warnings),
+        "lights": lights,
+        "materials": clusters,
+        "albedo_file": "albedo.ply",
+        "report_file": "report.json",
+        "pictures": pics,
+        "warnings": result.warnings,
+    }
+    return atomic_write_json(out / "scene.json", scene)

@@ -1,0 +1,437 @@
+"""``reroom invert SCAN``: lights and materials of a scanned room (thesis ch. 5).
+
+Reads ``SCAN/hdr/hdr_mesh.ply`` (radiance, observed), ``SCAN/layout/layout_labels.ply``
+(per-vertex wall / floor / ceiling / ... labels) and ``SCAN/lights/lights.json`` (which
+lights exist and where), computes the hemisphere transfer (indirect light, area lights,
+windows in a cube-map basis) on a voxel subsample of the observed vertices (copied to
+the others, :mod:`reroom.invert.subsample`) and the point and line light transfers on
+every observed vertex, solves eq. 5.7 on the wall, floor and ceiling clusters
+(:mod:`reroom.invert.solve`), then every observed vertex's albedo with the solved light,
+and writes ``SCAN/invert/`` (:mod:`reroom.invert.export`). Never reads ``ground_truth/``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from reroom.errors import ScanError
+from reroom.hdr.observe import vertex_normals
+from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
+from reroom.invert.basis import CubemapBasis, InclinationBasis
+from reroom.invert.direct import line_light_transfer, point_light_transfer
+from reroom.invert.solve import (
+    InverseProblem,
+    LightBlock,
+    SolveOptions,
+    SolveResult,
+    per_vertex_albedo,
+    solve_lighting,
+)
+from reroom.invert.subsample import spread_transfer, voxel_receivers
+from reroom.invert.transfer import hemisphere_transfer
+from reroom.invert.windows import WindowOpening
+from reroom.io.mesh import read_ply
+from reroom.rays import RayCaster
+
+__all__ = ["InvertOptions", "InvertResult", "run_invert", "CLUSTER_LABELS"]
+
+#: Layout label ids of the clusters solved with the lights (``reroom.synth.labels``).
+CLUSTER_LABELS = {"wall": 0, "floor": 1, "ceiling": 2}
+
+
+@dataclass
+class InvertOptions:
+    """Options of :func:`run_invert`.
+
+    Parameters
+    ----------
+    cubemap_n : int
+        Cube-map cells per face edge of window light (thesis: 4, 96 cells).
+    bins : int
+        Inclination bins of point and line lights (thesis: 32).
+    rays_per_receiver : int
+        Hemisphere rays per receiving vertex.
+    receiver_voxel : float
+        Metres; one receiver per voxel and normal octant (0: every observed vertex).
+    line_segments : int
+        Shadow-ray pieces of a line light.
+    area_samples : int
+        Points sampled on each area light per receiver (its transfer integrates over
+        the light's surface: the hemisphere rays' hit count is far too noisy for
+        small lights, see :mod:`reroom.invert.area`).
+    fixture_margin : float
+        Metres: vertices this close to a line light (beyond its radius) or to a point
+        light are its glowing fixture, left out of the indirect light.
+    seed : int
+        Seed of the ray sampling and of the solve's vertex subset.
+    solve : SolveOptions
+        Options of the eq. 5.7 solve.
+    pictures : bool
+        Write the diagrams and cube-map pictures.
+    """
+
+    cubemap_n: int = 4
+    bins: int = 32
+    rays_per_receiver: int = 512
+    receiver_voxel: float = 0.1
+    line_segments: int = 16
+    area_samples: int = DEFAULT_AREA_SAMPLES
+    fixture_margin: float = 0.05
+    seed: int = 0
+    solve: SolveOptions = field(default_factory=SolveOptions)
+    pictures: bool = True
+
+
+@dataclass
+class InvertResult:
+    """What :func:`run_invert` computed (also written to ``out_dir``).
+
+    Attributes
+    ----------
+    solve : SolveResult
+        Lights and cluster albedos.
+    lights : list of LightBlock
+        The solved lights, in column order.
+    light_info : list of dict
+        Each light's geometry, as read from ``lights.json``.
+    cluster_names : list of str
+    albedo : ndarray, shape (V, 3)
+        Per-vertex albedo (NaN where unknown).
+    flags : dict of str to ndarray of bool, shape (V,)
+        ``in_cluster``, ``solved_per_vertex``, ``nonphysical``, ``unobserved``,
+        ``light`` (a light's own surface).
+    cubemap_n, bins : int
+    timings : dict of str to float
+    warnings : list of str
+    out_dir : Path
+    """
+
+    solve: SolveResult
+    lights: list[LightBlock]
+    light_info: list[dict]
+    cluster_names: list[str]
+    albedo: np.ndarray
+    flags: dict[str, np.ndarray]
+    cubemap_n: int
+    bins: int
+    timings: dict[str, float]
+    warnings: list[str]
+    out_dir: Path
+
+
+def _require(path: Path, what: str) -> Path:
+    if not path.is_file():
+        raise ScanError(path, f"is missing ({what})")
+    return path
+
+
+def _load_lights(scan: Path, n_vertices: int, notes: list[str]):
+    """The scan's light set, or None with a warning when there is none."""
+    from reroom.lights import load_lights
+
+    path = scan / "lights" / "lights.json"
+    if not path.is_file():
+        notes.append(f"{path} is missing: solving with no lights (run `reroom lights` first)")
+        return None
+    lights = load_lights(path)
+    if len(lights.vertex_light_id) not in (0, n_vertices):
+        raise ScanError(
+            path,
+            f"has {len(lights.vertex_light_id)} per-vertex light ids for a mesh of "
+            f"{n_vertices} vertices",
+        )
+    if not lights.lights:
+        notes.append(f"{path} lists no light: albedos explain the radiance by indirect light")
+    return lights
+
+
+def _fixture_vertices(points: np.ndarray, lights: list, margin: float) -> np.ndarray:
+    """Vertices on the glowing surface of a line or point light (within ``margin``)."""
+    near = np.zeros(len(points), dtype=bool)
+    for light in lights:
+        g = light.geometry
+        if light.type == "line":
+            p0, p1 = np.asarray(g["p0"], float), np.asarray(g["p1"], float)
+            d = p1 - p0
+            s = np.clip((points - p0) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+            dist = np.linalg.norm(points - (p0 + s[:, None] * d), axis=1)
+            near |= dist <= float(g.get("radius", 0.0)) + margin
+        elif light.type == "point":
+            near |= np.linalg.norm(points - np.asarray(g["position"], float), axis=1) <= margin
+    return near
+
+
+def run_invert(
+    scan_dir: str | Path,
+    out_dir: str | Path | None = None,
+    options: InvertOptions | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+    *,
+    radiance_override: np.ndarray | None = None,
+) -> InvertResult:
+    """Solve the lights and materials of a scan and write ``SCAN/invert/``.
+
+    Parameters
+    ----------
+    scan_dir : path
+        The scan folder, with ``hdr/``, ``layout/`` and ``lights/`` from earlier stages.
+    out_dir : path, optional
+        Output folder (default ``SCAN/invert``).
+    options : InvertOptions, optional
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+    radiance_override : ndarray, shape (V, 3), optional
+        Radiance to use instead of the HDR mesh's, every vertex counted as observed
+        (for :func:`reroom.invert.evaluate.run_invert_true_radiance` only).
+
+    Returns
+    -------
+    InvertResult
+
+    Raises
+    ------
+    ScanError
+        A required input file is missing or inconsistent with the mesh.
+    """
+    from reroom.invert.export import write_outputs
+
+    options = options or InvertOptions()
+    scan = Path(scan_dir)
+    out = Path(out_dir) if out_dir is not None else scan / "invert"
+    notes: list[str] = []
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+
+    hdr_path = _require(scan / "hdr" / "hdr_mesh.ply", "run `reroom hdr SCAN` first")
+    labels_path = _require(scan / "layout" / "layout_labels.ply", "run `reroom layout SCAN` first")
+    mesh = read_ply(hdr_path)
+    attrs = mesh.vertex_attributes
+    if "radiance" not in attrs or "observed" not in attrs:
+        raise ScanError(hdr_path, "has no radiance_r/g/b or observed vertex properties")
+    radiance = np.asarray(attrs["radiance"], dtype=np.float64)
+    observed = np.asarray(attrs["observed"]).astype(bool) & np.isfinite(radiance).all(axis=1)
+    nv = len(mesh.vertices)
+    if radiance_override is not None:
+        radiance = np.asarray(radiance_override, dtype=np.float64).reshape(nv, 3)
+        observed = np.ones(nv, dtype=bool)
+        notes.append("EVALUATION ONLY: solved with the ground truth's radiance")
+    labels_mesh = read_ply(labels_path)
+    if len(labels_mesh.vertices) != nv or "label" not in labels_mesh.vertex_attributes:
+        raise ScanError(labels_path, f"must have a label per vertex of {hdr_path.name} ({nv})")
+    labels = np.asarray(labels_mesh.vertex_attributes["label"]).astype(int)
+    lightset = _load_lights(scan, nv, notes)
+    timings["load"] = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ lights
+    light_list = lightset.lights if lightset is not None else []
+    ids = (
+        lightset.vertex_light_id
+        if lightset is not None and len(lightset.vertex_light_id)
+        else np.full(nv, -1, np.int32)
+    )
+    areas = [x for x in light_list if x.type == "area"]
+    wins = [x for x in light_list if x.type == "window"]
+    area_of = np.full(nv, -1, np.int64)
+    window_of = np.full(nv, -1, np.int64)
+    for k, light in enumerate(areas):
+        area_of[ids == light_list.index(light)] = k
+    for k, light in enumerate(wins):
+        window_of[ids == light_list.index(light)] = k
+    openings = [
+        WindowOpening(
+            w.name,
+            np.asarray(w.geometry["centre"], float),
+            np.asarray(w.geometry["half_u"], float),
+            np.asarray(w.geometry["half_v"], float),
+            np.asarray(w.geometry["normal"], float),
+        )
+        for w in wins
+    ]
+    # The glowing surfaces of line (and point) light fixtures are modelled by those
+    # lights: their vertices must not also count as indirect light, so they join the
+    # emitters' class as an extra "area light" whose transfer column is dropped.
+    pts = np.asarray(mesh.vertices, dtype=np.float64)
+    fixture = _fixture_vertices(pts, light_list, options.fixture_margin)
+    if fixture.any():
+        area_of[fixture & (area_of < 0) & (window_of < 0)] = len(areas)
+    on_light = (ids >= 0) | fixture
+    normals = vertex_normals(mesh)
+    has_normal = np.linalg.norm(normals, axis=1) > 0
+    receivers = np.flatnonzero(observed & ~on_light & has_normal)
+    if len(receivers) == 0:
+        raise ScanError(hdr_path, "has no observed vertex to solve for")
+
+    # ------------------------------------------------------------------ transfer
+    t = time.perf_counter()
+    caster = RayCaster(mesh)
+    basis = CubemapBasis(options.cubemap_n)
+    if options.receiver_voxel > 0:
+        sub = voxel_receivers(pts, normals, receivers, options.receiver_voxel)
+    else:
+        sub = receivers
+    hemi = hemisphere_transfer(
+        caster,
+        mesh,
+        sub,
+        normals,
+        radiance,
+        observed,
+        area_of,
+        openings,
+        basis,
+        rays_per_vertex=options.rays_per_receiver,
+        seed=options.seed,
+        progress=None if progress is None else (lambda d, n: progress("invert transfer", d, n)),
+        window_of_vertex=window_of,
+    )
+    if len(sub) != len(receivers):
+        hemi = spread_transfer(hemi, pts, normals, receivers)
+    timings["hemisphere_transfer"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    blocks: list[LightBlock] = []
+    columns: list[np.ndarray] = []
+    info: list[dict] = []
+    incl = InclinationBasis(options.bins)
+    chain = np.stack([np.arange(options.bins - 1), np.arange(1, options.bins)], axis=1)
+    p_recv, n_recv = pts[receivers], normals[receivers]
+    for k, light in enumerate(areas):
+        blocks.append(LightBlock(light.name, "area", 1))
+        # Integrated over the light's surface, not counted from the hemisphere rays:
+        # those are unbiased but far too noisy for a small light (reroom.invert.area).
+        f_area = area_light_transfer(
+            caster,
+            mesh,
+            area_of == k,
+            p_recv,
+            n_recv,
+            options.area_samples,
+            seed=options.seed + k,
+        )
+        columns.append(f_area[:, None])
+        info.append({"name": light.name, "type": "area", "geometry": light.geometry})
+    for k, light in enumerate(wins):
+        blocks.append(LightBlock(light.name, "window", basis.size, False, basis.adjacency()))
+        columns.append(hemi.distant[:, k, :])
+        info.append({"name": light.name, "type": "window", "geometry": light.geometry})
+    for light in light_list:
+        g = light.geometry
+        if light.type == "point":
+            f = point_light_transfer(
+                caster,
+                p_recv,
+                n_recv,
+                np.asarray(g["position"], float),
+                np.asarray(g["axis"], float),
+                incl,
+            )
+        elif light.type == "line":
+            f = line_light_transfer(
+                caster,
+                p_recv,
+                n_recv,
+                np.asarray(g["p0"], float),
+                np.asarray(g["p1"], float),
+                np.asarray(g["d_perp"], float),
+                incl,
+                segments=options.line_segments,
+            )
+        else:
+            continue
+        blocks.append(LightBlock(light.name, light.type, options.bins, True, chain))
+        columns.append(f)
+        info.append({"name": light.name, "type": light.type, "geometry": g})
+    transfer = (
+        sp.csr_matrix(np.concatenate(columns, axis=1))
+        if columns
+        else sp.csr_matrix((len(receivers), 0))
+    )
+    timings["direct_transfer"] = time.perf_counter() - t
+
+    # ------------------------------------------------------------------ solve
+    t = time.perf_counter()
+    indirect = hemi.indirect_rescaled()
+    names = list(CLUSTER_LABELS)
+    cluster_of_label = {v: i for i, v in enumerate(CLUSTER_LABELS.values())}
+    rec_labels = labels[receivers]
+    in_cluster = np.isin(rec_labels, list(CLUSTER_LABELS.values()))
+    rows = np.flatnonzero(in_cluster)
+    cluster = np.array([cluster_of_label[x] for x in rec_labels[rows]], dtype=int)
+    problem = InverseProblem(
+        radiance=radiance[receivers[rows]],
+        indirect=indirect[rows],
+        cluster=cluster,
+        cluster_names=names,
+        transfer=transfer[rows],
+        lights=blocks,
+    )
+    result = solve_lighting(problem, options.solve, progress)
+    timings["solve"] = time.perf_counter() - t
+
+    # ------------------------------------------------------------------ per vertex
+    t = time.perf_counter()
+    rec_albedo, nonphys = per_vertex_albedo(radiance[receivers], indirect, transfer, blocks, result)
+    albedo = np.full((nv, 3), np.nan)
+    albedo[receivers] = rec_albedo
+    flags = {
+        "in_cluster": np.zeros(nv, bool),
+        "solved_per_vertex": np.zeros(nv, bool),
+        "nonphysical": np.zeros(nv, bool),
+        "unobserved": ~observed,
+        "light": on_light,
+    }
+    used_rows = rows[result.cluster_used[cluster]]
+    flags["in_cluster"][receivers[used_rows]] = True
+    flags["solved_per_vertex"][receivers] = np.isfinite(rec_albedo).all(axis=1)
+    flags["nonphysical"][receivers] = nonphys
+    timings["per_vertex"] = time.perf_counter() - t
+    notes.extend(result.warnings)
+    if nonphys.any():
+        notes.append(
+            f"{int(nonphys.sum())} vertices ({nonphys.mean():.1%} of the observed) have a "
+            "non-physical albedo > 1 (flagged, not clipped)"
+        )
+    timings["total"] = time.perf_counter() - t0
+    res = InvertResult(
+        solve=result,
+        lights=blocks,
+        light_info=info,
+        cluster_names=names,
+        albedo=albedo,
+        flags=flags,
+        cubemap_n=options.cubemap_n,
+        bins=options.bins,
+        timings=timings,
+        warnings=notes,
+        out_dir=out,
+    )
+    meta = {
+        "scan": str(scan),
+        "inputs": {
+            "hdr_mesh": str(hdr_path),
+            "labels": str(labels_path),
+            "lights": str(scan / "lights" / "lights.json"),
+        },
+        "mesh_vertices": nv,
+        "observed": int(observed.sum()),
+        "receivers": int(len(receivers)),
+        "hemisphere_receivers": int(len(sub)),
+        "clustered": int(len(rows)),
+        "options": _jsonable_options(options),
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        write_outputs(res, mesh, out, meta, pictures=options.pictures)
+    return res
+
+
+def _jsonable_options(options: InvertOptions) -> dict:
+    return json.loads(json.dumps(asdict(options), default=str))

@@ -1,0 +1,1007 @@
+"""Scene-scale inverse rendering: eq. 5.7 of the thesis, lights and cluster albedos at once.
+
+For each observed diffuse vertex ``V`` of a material cluster ``k(V)`` and each channel::
+
+    Lbar_V = rho_k / pi * (E_ind(V) + sum_l F_l(V) . I_l)          (eq. 5.6)
+
+``Lbar`` is the HDR radiance, ``E_ind`` the indirect irradiance (rescaled for missing
+data, eq. 5.9), ``F_l(V)`` the transfer row of light ``l`` (irradiance per unit basis
+intensity) and ``I_l`` its basis intensities. The unknowns are ``rho`` (per cluster and
+channel, ``0 <= rho < 1``) and every ``I_l`` (nonnegative). The solve minimises::
+
+    sum_{V,c} huber_delta( sqrt(w_Vc) * r_Vc )  +  sum_l lambda_l sum_{(i,j) in A_l} (I_li - I_lj)^2
+
+with ``r = (Lbar - model) / s`` (``s``: the median observed radiance, so ``delta`` is
+relative), ``w`` the reweighting of eq. 5.8 (``R = Lbar / E_ind``, ``w = 1`` if
+``R <= 1`` else ``exp(c (1 - R))``) and ``A_l`` the adjacent basis cells of light ``l``.
+``lambda_l = lambda_smooth * mean_j ||F_lj||_w^2 * (0.5 / pi)^2``: the thesis's weak
+smoothness made independent of units, relative to the data curvature of one basis
+element. Cells no vertex sees are then the harmonic interpolation of their neighbours.
+
+Monochromatic lights (points and lines) are parametrised *exactly* as
+``I_l^c = col_lc * p_l`` with ``||col_l|| = 1`` (instead of the thesis's penalty
+``lambda_mono = 1e8``): the alternating solver renormalises after every colour step, the
+joint solver writes ``col`` in spherical angles restricted to the positive octant.
+They couple the three channels; without them each channel is solved on its own.
+
+Scale ambiguity (thesis 5.4.1): without ``E_ind``, ``(k I, rho / k)`` would fit as well;
+``E_ind`` is a known quantity that fixes ``rho``, and eq. 5.8 down-weights the vertices
+where direct light swamps it (there the ambiguity comes back).
+
+Two solvers (``SolveOptions.method``), compared in ``benchmarks/bench_invert.py``:
+
+``"alternating"`` (default)
+    Block coordinate descent with Huber by iteratively reweighted least squares: for
+    fixed ``rho`` the lights are a nonnegative linear least-squares problem, solved on its
+    normal equations (a Cholesky factor, then Lawson-Hanson NNLS on a ``K x K`` system, so
+    the cost per iteration is one sparse ``F^T W F`` product); for fixed lights ``rho`` is
+    closed form per cluster and channel. Monochrome colours take a third, linear, step.
+``"joint"``
+    All unknowns at once by :func:`scipy.optimize.least_squares` (trust-region
+    reflective with bounds, sparse Jacobian, LSMR), the Huber loss applied to the data
+    residuals only, started from the alternating solver's first light step.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+import scipy.sparse as sp
+
+from reroom.errors import ReroomError
+
+__all__ = [
+    "LIGHT_KINDS",
+    "InverseProblem",
+    "LightBlock",
+    "SolveOptions",
+    "SolveResult",
+    "indirect_weights",
+    "per_vertex_albedo",
+    "solve_lighting",
+]
+
+LIGHT_KINDS = ("area", "window", "point", "line")
+METHODS = ("alternating", "joint")
+
+
+class SolveError(ReroomError):
+    """The inverse-rendering problem is malformed (shapes, values) or cannot be solved."""
+
+
+@dataclass(frozen=True)
+class LightBlock:
+    """One light of the problem: a contiguous block of columns of the transfer matrix.
+
+    Parameters
+    ----------
+    name : str
+        The light's name (reports and warnings use it).
+    kind : {"area", "window", "point", "line"}
+        Its model. Only ``monochrome`` and ``adjacency`` change the solve.
+    size : int
+        Number of basis elements (columns of the transfer matrix).
+    monochrome : bool
+        Whether its colour is shared by all its basis elements (``I^c = col_c * p``).
+    adjacency : ndarray of int, shape (m, 2), optional
+        Pairs of adjacent basis elements smoothed by ``lambda_smooth``.
+    """
+
+    name: str
+    kind: str
+    size: int
+    monochrome: bool = False
+    adjacency: np.ndarray | None = None
+
+
+@dataclass
+class InverseProblem:
+    """The data of eq. 5.7 for the clustered vertices, independent of how it was computed.
+
+    Parameters
+    ----------
+    radiance : ndarray, shape (n, 3)
+        Observed outgoing radiance ``Lbar`` of each vertex.
+    indirect : ndarray, shape (n, 3)
+        Indirect irradiance ``E_ind`` (already rescaled for missing data, eq. 5.9).
+    cluster : ndarray of int, shape (n,)
+        Material cluster of each vertex, ``0 .. len(cluster_names) - 1``.
+    cluster_names : list of str
+        Names of the clusters (``wall``, ``floor``, ``ceiling``, ...).
+    transfer : sparse or dense matrix, shape (n, K)
+        Irradiance at each vertex per unit intensity of each basis light; the columns of
+        ``lights[0]`` come first, then ``lights[1]``'s, and so on.
+    lights : list of LightBlock
+        The lights, in column order; ``sum(l.size) == K``.
+    """
+
+    radiance: np.ndarray
+    indirect: np.ndarray
+    cluster: np.ndarray
+    cluster_names: list[str]
+    transfer: sp.csr_matrix | np.ndarray
+    lights: list[LightBlock]
+
+    def validate(self) -> None:
+        """Raise :class:`SolveError` naming the first inconsistent input."""
+        n = len(self.radiance)
+        if self.radiance.shape != (n, 3) or self.indirect.shape != (n, 3):
+            raise SolveError(
+                f"radiance {self.radiance.shape} and indirect {self.indirect.shape} must be (n, 3)"
+            )
+        if self.cluster.shape != (n,):
+            raise SolveError(f"cluster has shape {self.cluster.shape}, expected ({n},)")
+        k = sum(light.size for light in self.lights)
+        if self.transfer.shape != (n, k):
+            raise SolveError(
+                f"transfer has shape {self.transfer.shape}, expected ({n}, {k}) for the lights"
+            )
+        for light in self.lights:
+            if light.kind not in LIGHT_KINDS:
+                raise SolveError(f"light {light.name!r} has unknown kind {light.kind!r}")
+            if light.size < 1:
+                raise SolveError(f"light {light.name!r} has no basis elements")
+            if light.adjacency is not None and len(light.adjacency):
+                adj = np.asarray(light.adjacency)
+                if adj.ndim != 2 or adj.shape[1] != 2 or adj.min() < 0 or adj.max() >= light.size:
+                    raise SolveError(f"light {light.name!r} has invalid adjacency pairs")
+        for name, a in (("radiance", self.radiance), ("indirect", self.indirect)):
+            if not np.all(np.isfinite(a)):
+                raise SolveError(f"{name} has non-finite values")
+        if n and (self.cluster.min() < 0 or self.cluster.max() >= len(self.cluster_names)):
+            raise SolveError("cluster ids out of range of cluster_names")
+
+
+@dataclass
+class SolveOptions:
+    """Options of :func:`solve_lighting`.
+
+    Parameters
+    ----------
+    method : {"alternating", "joint"}
+        Solver (see the module docstring).
+    huber_delta : float or None
+        Huber threshold on ``sqrt(w) * r`` (relative to the median radiance); ``None``
+        for plain least squares.
+    reweight_c : float or None
+        ``c`` of eq. 5.8 (thesis: 10); ``None`` disables the reweighting.
+    min_weight : float
+        Floor of the eq. 5.8 weights, so that a cluster lit only directly still counts.
+    smooth_lambda : float
+        Relative smoothness weight (see the module docstring).
+    rho_max : float
+        Upper bound of the cluster albedos (``rho < 1``).
+    min_cluster_vertices : int
+        Clusters with fewer vertices are left out of the solve (with a warning).
+    max_vertices : int or None
+        Solve on at most this many clustered vertices (a seeded random subset that keeps
+        every vertex receiving light from a rarely seen basis element); ``None``: all.
+        The lights have a few hundred unknowns, so a subset determines them as well as
+        the whole mesh and keeps the solve time bounded (``benchmarks/bench_invert.py``).
+    seed : int
+        Seed of that subset.
+    max_iterations : int
+        Rounds of the alternating solver.
+    max_evaluations : int
+        Function evaluations of each ``least_squares`` call (joint solver).
+    inner : {"lm", "trf"}
+        Inner solver of the joint method: bounded Levenberg-Marquardt on the dense normal
+        equations (``"lm"``), or ``scipy.optimize.least_squares`` (trust-region
+        reflective, sparse Jacobian, LSMR).
+    max_rounds : int
+        Huber reweighting rounds of the joint solver.
+    tolerance : float
+        Relative decrease of the objective that stops the alternating solver, and the
+        ``ftol``/``xtol``/``gtol`` of each ``least_squares`` call.
+    irls_tolerance : float
+        Relative decrease of the Huber objective that stops the joint solver's rounds.
+    """
+
+    method: Literal["alternating", "joint"] = "joint"
+    huber_delta: float | None = 0.05
+    reweight_c: float | None = 10.0
+    min_weight: float = 1e-4
+    smooth_lambda: float = 1e-3
+    rho_max: float = 1.0 - 1e-6
+    min_cluster_vertices: int = 30
+    max_vertices: int | None = 20000
+    seed: int = 0
+    max_iterations: int = 300
+    max_evaluations: int = 200
+    inner: Literal["lm", "trf"] = "lm"
+    max_rounds: int = 30
+    tolerance: float = 1e-9
+    irls_tolerance: float = 1e-6
+
+
+@dataclass
+class SolveResult:
+    """Lights and cluster albedos solved by :func:`solve_lighting`.
+
+    Attributes
+    ----------
+    albedo : ndarray, shape (C, 3)
+        Albedo per cluster and channel; NaN for clusters left out of the solve.
+    intensities : dict of str to ndarray (size, 3)
+        Per light, per basis element, per channel intensity (radiance for area and window
+        cells, radiant intensity per unit length or per steradian for lines and points).
+    colors : dict of str to ndarray (3,)
+        Unit-norm colour of each monochrome light.
+    profiles : dict of str to ndarray (size,)
+        Scalar profile of each monochrome light (``intensities = profile x colour``).
+    cluster_used : ndarray of bool, shape (C,)
+        Which clusters entered the solve.
+    weights : ndarray, shape (n, 3)
+        Final weight of each data term (eq. 5.8 times the Huber IRLS weight).
+    residual : ndarray, shape (n, 3)
+        ``Lbar - model`` (absolute radiance) at the solution; NaN for unused vertices.
+    objective : float
+        Final value of the objective (relative units).
+    iterations : int
+        Alternating rounds or ``least_squares`` evaluations.
+    converged : bool
+        Whether the tolerance was reached before ``max_iterations``.
+    seconds : float
+        Wall time of the solve.
+    light_share : dict of str to float
+        Each light's share of the modelled irradiance on the clustered vertices.
+    warnings : list of str
+        Problems found (unused clusters, lights that explain nothing, ...).
+    history : list of float
+        Objective after every round (alternating) or evaluation (joint).
+    """
+
+    albedo: np.ndarray
+    intensities: dict[str, np.ndarray]
+    colors: dict[str, np.ndarray]
+    profiles: dict[str, np.ndarray]
+    cluster_used: np.ndarray
+    weights: np.ndarray
+    residual: np.ndarray
+    objective: float
+    iterations: int
+    converged: bool
+    seconds: float
+    light_share: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    history: list[float] = field(default_factory=list)
+    method: str = "alternating"
+
+    def intensity_vector(self, lights: list[LightBlock]) -> np.ndarray:
+        """All lights' intensities stacked in column order, shape (K, 3)."""
+        if not lights:
+            return np.zeros((0, 3))
+        return np.concatenate([self.intensities[light.name] for light in lights], axis=0)
+
+
+def indirect_weights(
+    radiance: np.ndarray, indirect: np.ndarray, c: float = 10.0, floor: float = 0.0
+) -> np.ndarray:
+    """The reweighting of eq. 5.8: favour vertices whose indirect light is not negligible.
+
+    Parameters
+    ----------
+    radiance, indirect : ndarray, shape (n, 3)
+        ``Lbar`` and ``E_ind``.
+    c : float
+        Steepness (thesis: 10).
+    floor : float
+        Smallest weight returned.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        ``1`` where ``R = Lbar / E_ind <= 1``, ``exp(c (1 - R))`` above.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(indirect > 0, radiance / indirect, np.inf)
+    w = np.where(ratio <= 1.0, 1.0, np.exp(c * (1.0 - np.minimum(ratio, 1e6))))
+    return np.maximum(w, floor)
+
+
+# --------------------------------------------------------------------------------------
+# internal structure: column layout and smoothness
+
+
+@dataclass
+class _Layout:
+    """Where each light's columns are, split into chromatic and monochrome groups."""
+
+    chrom_cols: np.ndarray  # transfer columns of chromatic lights
+    mono_cols: np.ndarray  # transfer columns of monochrome lights
+    mono_light_of_col: np.ndarray  # for each mono column, index into mono lights
+    mono_lights: list[LightBlock]
+    smooth_chrom: sp.csr_matrix  # rows sqrt(lambda) (e_i - e_j) over chrom columns
+    smooth_mono: sp.csr_matrix  # same over mono columns
+
+    @property
+    def n_chrom(self) -> int:
+        return len(self.chrom_cols)
+
+    @property
+    def n_mono(self) -> int:
+        return len(self.mono_cols)
+
+
+def _smoothness_rows(
+    lights: list[LightBlock], offsets: list[int], local: dict[int, int], n_cols: int, lam: dict
+) -> sp.csr_matrix:
+    rows, cols, vals = [], [], []
+    r = 0
+    for li, light in enumerate(lights):
+        if light.adjacency is None or len(light.adjacency) == 0 or lam.get(light.name, 0) <= 0:
+            continue
+        s = np.sqrt(lam[light.name])
+        for i, j in np.asarray(light.adjacency):
+            rows += [r, r]
+            cols += [local[offsets[li] + int(i)], local[offsets[li] + int(j)]]
+            vals += [s, -s]
+            r += 1
+    return sp.csr_matrix((vals, (rows, cols)), shape=(r, n_cols))
+
+
+def _layout(lights: list[LightBlock], col_norm2: np.ndarray, smooth_lambda: float) -> _Layout:
+    offsets = np.concatenate([[0], np.cumsum([light.size for light in lights])]).astype(int)
+    chrom, mono, mono_of = [], [], []
+    mono_lights: list[LightBlock] = []
+    lam: dict[str, float] = {}
+    ref = (0.5 / np.pi) ** 2
+    for li, light in enumerate(lights):
+        cols = np.arange(offsets[li], offsets[li + 1])
+        seen = col_norm2[cols] > 0
+        lam[light.name] = smooth_lambda * ref * (col_norm2[cols][seen].mean() if seen.any() else 0)
+        if light.monochrome:
+            mono.extend(cols)
+            mono_of.extend([len(mono_lights)] * len(cols))
+            mono_lights.append(light)
+        else:
+            chrom.extend(cols)
+    chrom_local = {c: i for i, c in enumerate(chrom)}
+    mono_local = {c: i for i, c in enumerate(mono)}
+    chrom_lights = [light for light in lights if not light.monochrome]
+    chrom_offsets = [int(offsets[i]) for i, lt in enumerate(lights) if not lt.monochrome]
+    mono_offsets = [int(offsets[i]) for i, lt in enumerate(lights) if lt.monochrome]
+    return _Layout(
+        chrom_cols=np.asarray(chrom, dtype=int),
+        mono_cols=np.asarray(mono, dtype=int),
+        mono_light_of_col=np.asarray(mono_of, dtype=int),
+        mono_lights=mono_lights,
+        smooth_chrom=_smoothness_rows(chrom_lights, chrom_offsets, chrom_local, len(chrom), lam),
+        smooth_mono=_smoothness_rows(mono_lights, mono_offsets, mono_local, len(mono), lam),
+    )
+
+
+def _nnls_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``argmin_{x >= 0} x^T G x - 2 x^T g`` through a Cholesky factor and Lawson-Hanson."""
+    n = len(rhs)
+    if n == 0:
+        return np.zeros(0)
+    g = gram + np.eye(n) * (1e-12 * max(float(np.max(np.diag(gram))), 1e-300))
+    try:
+        r = scipy.linalg.cholesky(g, lower=False)
+    except np.linalg.LinAlgError:
+        g += np.eye(n) * 1e-9 * max(float(np.max(np.diag(gram))), 1e-300)
+        r = scipy.linalg.cholesky(g, lower=False)
+    d = scipy.linalg.solve_triangular(r, rhs, trans="T", lower=False)
+    x, _ = scipy.optimize.nnls(r, d, maxiter=50 * n)
+    return x
+
+
+# --------------------------------------------------------------------------------------
+# the state of a solve (relative units: radiance / s)
+
+
+@dataclass
+class _State:
+    rho: np.ndarray  # (C, 3)
+    chrom: np.ndarray  # (Kc, 3)
+    profile: np.ndarray  # (Km,)
+    color: np.ndarray  # (n_mono_lights, 3), unit rows
+
+    def intensity_cols(self, lay: _Layout, k: int) -> np.ndarray:
+        out = np.zeros((k, 3))
+        out[lay.chrom_cols] = self.chrom
+        if lay.n_mono:
+            out[lay.mono_cols] = self.profile[:, None] * self.color[lay.mono_light_of_col]
+        return out
+
+
+class _Data:
+    """The clustered data in relative units with the fixed weights of eq. 5.8."""
+
+    def __init__(
+        self,
+        problem: InverseProblem,
+        rows: np.ndarray,
+        options: SolveOptions,
+        scale: float | None = None,
+    ) -> None:
+        self.rows = rows
+        lbar = problem.radiance[rows]
+        positive = lbar[lbar > 0]
+        if scale is None:
+            scale = float(np.median(positive)) if positive.size else 1.0
+        self.scale = scale
+        self.L = lbar / self.scale
+        self.E = problem.indirect[rows] / self.scale
+        self.cluster = problem.cluster[rows]
+        self.n_clusters = len(problem.cluster_names)
+        f = problem.transfer
+        self.F = (sp.csr_matrix(f) if not sp.issparse(f) else f.tocsr())[rows].astype(float)
+        self.K = self.F.shape[1]
+        if options.reweight_c is None:
+            self.w = np.ones_like(self.L)
+        else:
+            self.w = indirect_weights(lbar, problem.indirect[rows], options.reweight_c)
+            self.w = np.maximum(self.w, options.min_weight)
+        self.delta = options.huber_delta
+
+    def model(self, st: _State, lay: _Layout) -> np.ndarray:
+        direct = self.F @ st.intensity_cols(lay, self.K)
+        return st.rho[self.cluster] / np.pi * (self.E + direct)
+
+    def objective(self, st: _State, lay: _Layout) -> tuple[float, np.ndarray]:
+        """Objective and the Huber IRLS weights ``h`` (weighted residual scale)."""
+        r = np.sqrt(self.w) * (self.L - self.model(st, lay))
+        a = np.abs(r)
+        if self.delta is None:
+            data = float(np.sum(r * r))
+            h = np.ones_like(r)
+        else:
+            d = self.delta
+            data = float(np.sum(np.where(a <= d, r * r, 2 * d * a - d * d)))
+            h = np.where(a <= d, 1.0, d / np.maximum(a, 1e-300))
+        smooth = 0.0
+        if lay.smooth_chrom.shape[0]:
+            smooth += float(np.sum((lay.smooth_chrom @ st.chrom) ** 2))
+        if lay.smooth_mono.shape[0]:
+            smooth += float(np.sum((lay.smooth_mono @ st.profile) ** 2))
+        return data + smooth, h
+
+
+# --------------------------------------------------------------------------------------
+# alternating solver
+
+
+def _target(data: _Data, st: _State) -> np.ndarray:
+    """The irradiance each vertex needs from the lights: ``Lbar / (rho / pi) - E_ind``."""
+    rv = st.rho[data.cluster] / np.pi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rv > 0, data.L / np.where(rv > 0, rv, 1.0) - data.E, 0.0)
+
+
+def _light_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> None:
+    """For fixed ``rho`` and colours: the nonnegative least squares in the intensities."""
+    f_chrom = data.F[:, lay.chrom_cols]
+    f_mono = data.F[:, lay.mono_cols]
+    scale = weight * (st.rho[data.cluster] / np.pi) ** 2  # (n, 3)
+    target = _target(data, st)  # (n, 3)
+    kc, km = lay.n_chrom, lay.n_mono
+    s_c = (lay.smooth_chrom.T @ lay.smooth_chrom).toarray() if kc else np.zeros((0, 0))
+    if km == 0:
+        # uncoupled channels: one small NNLS per channel
+        for c in range(3):
+            g = (f_chrom.T @ f_chrom.multiply(scale[:, c : c + 1])).toarray() + s_c
+            rhs = f_chrom.T @ (scale[:, c] * target[:, c])
+            st.chrom[:, c] = _nnls_normal(g, rhs)
+        return
+    s_m = (lay.smooth_mono.T @ lay.smooth_mono).toarray()
+    n_all = 3 * kc + km
+    gram = np.zeros((n_all, n_all))
+    rhs = np.zeros(n_all)
+    col_of = st.color[lay.mono_light_of_col]  # (Km, 3)
+    mono = slice(3 * kc, n_all)
+    for c in range(3):
+        fc_w = f_chrom.multiply(scale[:, c : c + 1]).tocsc()
+        fm_w = f_mono.multiply(scale[:, c : c + 1]).tocsc()
+        blk = slice(c * kc, (c + 1) * kc)
+        gram[blk, blk] = (f_chrom.T @ fc_w).toarray() + s_c
+        cm = (f_chrom.T @ fm_w).toarray() * col_of[:, c][None, :]
+        gram[blk, mono] = cm
+        gram[mono, blk] = cm.T
+        mm = (f_mono.T @ fm_w).toarray()
+        gram[mono, mono] += mm * np.outer(col_of[:, c], col_of[:, c])
+        rhs[blk] = f_chrom.T @ (scale[:, c] * target[:, c])
+        rhs[mono] += col_of[:, c] * (f_mono.T @ (scale[:, c] * target[:, c]))
+    gram[mono, mono] += s_m
+    x = _nnls_normal(gram, rhs)
+    st.chrom[:] = x[: 3 * kc].reshape(3, kc).T
+    st.profile[:] = x[3 * kc :]
+
+
+def _color_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> None:
+    """For fixed ``rho`` and profiles: colours (and chromatic lights), one NNLS per channel."""
+    n_ml = len(lay.mono_lights)
+    f_chrom = data.F[:, lay.chrom_cols]
+    # each monochrome light's irradiance for unit colour: F_l p_l
+    per_light = sp.csr_matrix(
+        (st.profile, (np.arange(lay.n_mono), lay.mono_light_of_col)), shape=(lay.n_mono, n_ml)
+    )
+    unit = np.asarray((data.F[:, lay.mono_cols] @ per_light).todense())  # (n, n_ml)
+    design = sp.hstack([f_chrom, sp.csr_matrix(unit)]).tocsr()
+    kc = lay.n_chrom
+    scale = weight * (st.rho[data.cluster] / np.pi) ** 2
+    target = _target(data, st)
+    s_c = (lay.smooth_chrom.T @ lay.smooth_chrom).toarray() if kc else np.zeros((0, 0))
+    new_color = np.zeros((n_ml, 3))
+    for c in range(3):
+        g = (design.T @ design.multiply(scale[:, c : c + 1])).toarray()
+        g[:kc, :kc] += s_c
+        rhs = design.T @ (scale[:, c] * target[:, c])
+        x = _nnls_normal(g, rhs)
+        st.chrom[:, c] = x[:kc]
+        new_color[:, c] = x[kc:]
+    norm = np.linalg.norm(new_color, axis=1)
+    for i in range(n_ml):
+        if norm[i] > 0:
+            st.color[i] = new_color[i] / norm[i]
+            st.profile[lay.mono_light_of_col == i] *= norm[i]
+        else:
+            st.profile[lay.mono_light_of_col == i] = 0.0
+
+
+def _rho_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray, rho_max: float) -> None:
+    """For fixed lights: the closed-form weighted least squares albedo of each cluster."""
+    irr = data.E + data.F @ st.intensity_cols(lay, data.K)  # (n, 3)
+    num = np.zeros((data.n_clusters, 3))
+    den = np.zeros((data.n_clusters, 3))
+    np.add.at(num, data.cluster, weight * irr * data.L)
+    np.add.at(den, data.cluster, weight * irr * irr)
+    present = den > 0
+    st.rho[present] = np.clip(np.pi * num[present] / den[present], 0.0, rho_max)
+
+
+def _solve_alternating(
+    data: _Data, lay: _Layout, st: _State, options: SolveOptions, progress
+) -> tuple[int, bool, list[float]]:
+    history: list[float] = []
+    obj, h = data.objective(st, lay)
+    converged = False
+    it = 0
+    for it in range(1, options.max_iterations + 1):
+        weight = data.w * h
+        _light_step(data, lay, st, weight)
+        if lay.n_mono:
+            _color_step(data, lay, st, weight)
+        _rho_step(data, lay, st, weight, options.rho_max)
+        new, h = data.objective(st, lay)
+        history.append(new)
+        if progress is not None:
+            progress("invert solve", it, options.max_iterations)
+        if abs(obj - new) <= options.tolerance * max(abs(obj), 1e-300):
+            converged = True
+            break
+        obj = new
+    return it, converged, history
+
+
+# --------------------------------------------------------------------------------------
+# joint solver (scipy least_squares)
+
+
+def _angles_of(color: np.ndarray) -> np.ndarray:
+    c = np.clip(color / np.maximum(np.linalg.norm(color, axis=1, keepdims=True), 1e-300), 0, 1)
+    theta = np.arccos(np.clip(c[:, 2], -1, 1))
+    phi = np.arctan2(c[:, 1], c[:, 0])
+    return np.stack([theta, phi], axis=1)
+
+
+def _color_of(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t, p = angles[:, 0], angles[:, 1]
+    col = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=1)
+    d_t = np.stack([np.cos(t) * np.cos(p), np.cos(t) * np.sin(p), -np.sin(t)], axis=1)
+    d_p = np.stack([-np.sin(t) * np.sin(p), np.sin(t) * np.cos(p), np.zeros_like(t)], axis=1)
+    return col, d_t, d_p
+
+
+def _bounded_lm(
+    fun: Callable, jac: Callable, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, options
+) -> tuple[np.ndarray, int, bool]:
+    """Levenberg-Marquardt with box bounds on the dense normal equations.
+
+    There are only a few hundred unknowns, so ``J^T J`` is small and dense even for many
+    residuals: each step is a bounded least-squares problem on its Cholesky factor
+    (Marquardt's diagonal scaling), solved exactly by BVLS.
+    """
+    x = x0.copy()
+    r = fun(x)
+    cost = float(r @ r)
+    mu = 1e-4
+    nfev = 1
+    for _ in range(options.max_evaluations):
+        jm = jac(x)
+        a = (jm.T @ jm).toarray()
+        g = jm.T @ r
+        d = np.maximum(np.diag(a), 1e-12 * max(float(np.max(np.diag(a))), 1e-300))
+        accepted = False
+        while mu < 1e12:
+            h = a + mu * np.diag(d)
+            try:
+                rf = scipy.linalg.cholesky(h, lower=False)
+            except np.linalg.LinAlgError:
+                mu *= 10
+                continue
+            b = -scipy.linalg.solve_triangular(rf, g, trans="T", lower=False)
+            step = scipy.optimize.lsq_linear(rf, b, bounds=(lo - x, hi - x), method="bvls").x
+            xn = np.clip(x + step, lo, hi)
+            rn = fun(xn)
+            nfev += 1
+            cn = float(rn @ rn)
+            if cn <= cost:
+                accepted = True
+                break
+            mu *= 10
+        if not accepted:
+            return x, nfev, True  # no descent left: a (constrained) minimum
+        small_f = cost - cn <= options.tolerance * cost
+        small_x = np.linalg.norm(xn - x) <= options.tolerance * (np.linalg.norm(x) + 1e-12)
+        x, r, cost = xn, rn, cn
+        mu = max(mu / 10, 1e-12)
+        if small_f or small_x:
+            return x, nfev, True
+    return x, nfev, False
+
+
+def _solve_joint(
+    data: _Data, lay: _Layout, st: _State, options: SolveOptions, weight: np.ndarray
+) -> tuple[int, bool]:
+    """One weighted least-squares solve of all unknowns, warm-started from ``st``."""
+    n, C = len(data.L), data.n_clusters
+    kc, km, n_ml = lay.n_chrom, lay.n_mono, len(lay.mono_lights)
+    used_c = np.unique(data.cluster)
+    n_rho = 3 * len(used_c)
+    rho_index = -np.ones(C, dtype=int)
+    rho_index[used_c] = np.arange(len(used_c))
+    n_par = n_rho + 3 * kc + km + 2 * n_ml
+    sqw = np.sqrt(weight)
+    f_chrom = data.F[:, lay.chrom_cols].tocsr()
+    f_mono = data.F[:, lay.mono_cols].tocsr()
+    sc, sm = lay.smooth_chrom, lay.smooth_mono
+
+    def unpack(x: np.ndarray) -> tuple:
+        rho = x[:n_rho].reshape(len(used_c), 3)
+        chrom = x[n_rho : n_rho + 3 * kc].reshape(3, kc).T
+        prof = x[n_rho + 3 * kc : n_rho + 3 * kc + km]
+        ang = x[n_rho + 3 * kc + km :].reshape(n_ml, 2)
+        return rho, chrom, prof, ang
+
+    def parts(x: np.ndarray) -> tuple:
+        rho, chrom, prof, ang = unpack(x)
+        col, d_t, d_p = _color_of(ang)
+        mono_i = prof[:, None] * col[lay.mono_light_of_col] if km else np.zeros((0, 3))
+        direct = f_chrom @ chrom + (f_mono @ mono_i if km else 0.0)
+        irr = data.E + direct
+        rv = rho[rho_index[data.cluster]] / np.pi
+        return rho, chrom, prof, col, d_t, d_p, irr, rv
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        _, chrom, prof, _, _, _, irr, rv = parts(x)
+        r = (sqw * (rv * irr - data.L)).T.ravel()
+        smooth = [(sc @ chrom).T.ravel(), sm @ prof]
+        return np.concatenate([r, *smooth])
+
+    vrows = np.arange(n)
+
+    def jac(x: np.ndarray) -> sp.csr_matrix:
+        _, _, prof, col, d_t, d_p, irr, rv = parts(x)
+        blocks = []
+        for c in range(3):
+            a = sqw[:, c]
+            rho_cols = rho_index[data.cluster] * 3 + c
+            j_rho = sp.csr_matrix((a * irr[:, c] / np.pi, (vrows, rho_cols)), shape=(n, n_rho))
+            j_ch = [sp.csr_matrix((n, kc))] * 3
+            j_ch[c] = f_chrom.multiply((a * rv[:, c])[:, None]).tocsr()
+            row = [j_rho, *j_ch]
+            if km:
+                wc = (a * rv[:, c])[:, None]
+                j_p = f_mono.multiply(wc).multiply(col[lay.mono_light_of_col, c][None, :])
+                per_light = sp.csr_matrix(
+                    (prof, (np.arange(km), lay.mono_light_of_col)), shape=(km, n_ml)
+                )
+                unit = np.asarray((f_mono @ per_light).todense()) * wc  # (n, n_ml)
+                j_ang = np.zeros((n, 2 * n_ml))
+                j_ang[:, 0::2] = unit * d_t[:, c][None, :]
+                j_ang[:, 1::2] = unit * d_p[:, c][None, :]
+                row += [j_p, sp.csr_matrix(j_ang)]
+            blocks.append(sp.hstack(row))
+        j_data = sp.vstack(blocks)
+        zr = sp.csr_matrix((sc.shape[0], n_rho))
+        s_rows = []
+        for c in range(3):
+            ch = [sp.csr_matrix((sc.shape[0], kc))] * 3
+            ch[c] = sc
+            tail = [sp.csr_matrix((sc.shape[0], km + 2 * n_ml))]
+            s_rows.append(sp.hstack([zr, *ch, *tail]))
+        s_rows.append(
+            sp.hstack(
+                [
+                    sp.csr_matrix((sm.shape[0], n_rho + 3 * kc)),
+                    sm,
+                    sp.csr_matrix((sm.shape[0], 2 * n_ml)),
+                ]
+            )
+        )
+        return sp.vstack([j_data, *s_rows]).tocsr()
+
+    x0 = np.concatenate(
+        [
+            st.rho[used_c].ravel(),
+            st.chrom.T.ravel(),
+            st.profile,
+            _angles_of(st.color).ravel() if n_ml else np.zeros(0),
+        ]
+    )
+    lo = np.zeros(n_par)
+    hi = np.full(n_par, np.inf)
+    hi[:n_rho] = options.rho_max
+    hi[n_rho + 3 * kc + km :] = np.pi / 2
+    x0 = np.clip(x0, lo, hi)
+    if options.inner == "lm":
+        x, nfev, ok = _bounded_lm(fun, jac, x0, lo, hi, options)
+    else:
+        res = scipy.optimize.least_squares(
+            fun,
+            x0,
+            jac=jac,
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            tr_solver="lsmr",
+            ftol=options.tolerance,
+            xtol=options.tolerance,
+            gtol=options.tolerance,
+            max_nfev=options.max_evaluations,
+        )
+        x, nfev, ok = res.x, int(res.nfev), bool(res.status > 0)
+    rho, chrom, prof, ang = unpack(x)
+    st.rho[used_c] = rho
+    st.chrom[:] = chrom
+    st.profile[:] = prof
+    if n_ml:
+        st.color[:] = _color_of(ang)[0]
+    return nfev, ok
+
+
+def _solve_joint_irls(
+    data: _Data, lay: _Layout, st: _State, options: SolveOptions, progress
+) -> tuple[int, bool, list[float]]:
+    """Huber by iteratively reweighted joint least squares (warm-started inner solves)."""
+    obj, h = data.objective(st, lay)
+    history: list[float] = []
+    evaluations, converged = 0, False
+    rounds = 1 if data.delta is None else options.max_rounds
+    for it in range(1, rounds + 1):
+        nfev, ok = _solve_joint(data, lay, st, options, data.w * h)
+        evaluations += nfev
+        new, h = data.objective(st, lay)
+        history.append(new)
+        if progress is not None:
+            progress("invert solve", it, rounds)
+        if data.delta is None:
+            converged = ok
+            break
+        if abs(obj - new) <= options.irls_tolerance * max(abs(obj), 1e-300):
+            converged = True
+            break
+        obj = new
+    return evaluations, converged, history
+
+
+# --------------------------------------------------------------------------------------
+
+
+def _one_blas_thread():
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(1, user_api="blas")
+
+
+def _solve_rows(problem: InverseProblem, used: np.ndarray, options: SolveOptions) -> np.ndarray:
+    """The clustered vertices the solve uses: all, or a subset keeping rare basis elements."""
+    rows = np.flatnonzero(used[problem.cluster])
+    cap = options.max_vertices
+    if cap is None or len(rows) <= cap:
+        return rows
+    rng = np.random.default_rng(options.seed)
+    f = problem.transfer
+    f = (sp.csr_matrix(f) if not sp.issparse(f) else f.tocsr())[rows]
+    seen = (f != 0).astype(np.int32)
+    counts = np.asarray(seen.sum(axis=0)).ravel()
+    # vertices that receive light from a basis element few vertices see are all kept
+    rare = (counts > 0) & (counts <= max(cap // max(f.shape[1], 1) // 4, 20))
+    keep = np.zeros(len(rows), dtype=bool)
+    if rare.any():
+        keep |= np.asarray(seen[:, np.flatnonzero(rare)].sum(axis=1)).ravel() > 0
+    rest = np.flatnonzero(~keep)
+    need = max(cap - int(keep.sum()), 0)
+    keep[rng.choice(rest, size=min(need, len(rest)), replace=False)] = True
+    return rows[keep]
+
+
+def solve_lighting(
+    problem: InverseProblem,
+    options: SolveOptions | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> SolveResult:
+    """Solve eq. 5.7: every light's basis intensities and every cluster's albedo.
+
+    Parameters
+    ----------
+    problem : InverseProblem
+        The clustered vertices' radiance, indirect irradiance and light transfers.
+    options : SolveOptions, optional
+        Solver, loss and regularisation.
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Returns
+    -------
+    SolveResult
+        The solution in the radiance units of ``problem``, with warnings for clusters
+        left out, lights no vertex sees and lights that explain nothing.
+
+    Raises
+    ------
+    SolveError
+        Inconsistent shapes or non-finite data, an unknown method, or no cluster with
+        enough vertices.
+    """
+    options = options or SolveOptions()
+    if options.method not in METHODS:
+        raise SolveError(f"unknown solve method {options.method!r}; choose from {METHODS}")
+    problem.validate()
+    t0 = time.perf_counter()
+    notes: list[str] = []
+    n_clusters = len(problem.cluster_names)
+    counts = np.bincount(problem.cluster, minlength=n_clusters)
+    used = counts >= options.min_cluster_vertices
+    for k in np.flatnonzero(~used):
+        name = problem.cluster_names[k]
+        if counts[k] == 0:
+            notes.append(f"cluster {name!r} has no observed vertex: albedo unknown")
+        else:
+            notes.append(
+                f"cluster {name!r} has only {counts[k]} observed vertices "
+                f"(< {options.min_cluster_vertices}): left out of the lighting solve"
+            )
+    if not used.any():
+        raise SolveError(
+            f"no material cluster has {options.min_cluster_vertices} or more observed vertices "
+            f"(counts {dict(zip(problem.cluster_names, counts.tolist(), strict=True))})"
+        )
+    rows = _solve_rows(problem, used, options)
+    if len(rows) < int(np.sum(counts[used])):
+        notes.append(f"solved on {len(rows)} of {int(np.sum(counts[used]))} clustered vertices")
+    data = _Data(problem, rows, options)
+    col_norm2 = np.asarray(data.F.multiply(data.F).T @ data.w.mean(axis=1)).ravel()
+    lay = _layout(problem.lights, col_norm2, options.smooth_lambda)
+    for li, light in enumerate(problem.lights):
+        start = sum(lt.size for lt in problem.lights[:li])
+        seen = col_norm2[start : start + light.size] > 0
+        if not seen.any():
+            notes.append(f"light {light.name!r}: no clustered vertex receives its light")
+    if not problem.lights:
+        notes.append("no lights: albedos explain the radiance by indirect light alone")
+    n_ml = len(lay.mono_lights)
+    st = _State(
+        rho=np.where(used[:, None], 0.5, np.nan) * np.ones((n_clusters, 3)),
+        chrom=np.zeros((lay.n_chrom, 3)),
+        profile=np.zeros(lay.n_mono),
+        color=np.full((n_ml, 3), 1.0 / np.sqrt(3.0)),
+    )
+    with _one_blas_thread():  # threaded BLAS on small vectors is 10x slower under load
+        if options.method == "alternating":
+            iterations, converged, history = _solve_alternating(data, lay, st, options, progress)
+        else:
+            _, h = data.objective(st, lay)
+            _light_step(data, lay, st, data.w * h)
+            iterations, converged, history = _solve_joint_irls(data, lay, st, options, progress)
+    objective, h = data.objective(st, lay)
+    if not converged:
+        notes.append(f"{options.method} solve stopped after {iterations} iterations")
+
+    # back to absolute units
+    s = data.scale
+    icols = st.intensity_cols(lay, data.K) * s
+    offsets = np.concatenate([[0], np.cumsum([lt.size for lt in problem.lights])]).astype(int)
+    intensities, colors, profiles, share = {}, {}, {}, {}
+    total_direct = 0.0
+    contrib = {}
+    for li, light in enumerate(problem.lights):
+        block = icols[offsets[li] : offsets[li + 1]]
+        intensities[light.name] = block
+        contrib[light.name] = float(
+            np.sum(data.F[:, offsets[li] : offsets[li + 1]] @ block) / max(len(data.L), 1)
+        )
+        total_direct += contrib[light.name]
+    for i, light in enumerate(lay.mono_lights):
+        colors[light.name] = st.color[i].copy()
+        profiles[light.name] = st.profile[lay.mono_light_of_col == i] * s
+    total = total_direct + float(np.sum(data.E) * s / max(len(data.L), 1))
+    for light in problem.lights:
+        share[light.name] = contrib[light.name] / total if total > 0 else 0.0
+        if share[light.name] < 1e-3:
+            notes.append(
+                f"light {light.name!r} explains nothing (share {share[light.name]:.1e} of the "
+                "irradiance): its intensity went to zero"
+            )
+    # residuals and weights of every clustered vertex, also those outside the subset
+    full = _Data(problem, np.flatnonzero(used[problem.cluster]), options, scale=s)
+    _, h_full = full.objective(st, lay)
+    residual = np.full(problem.radiance.shape, np.nan)
+    residual[full.rows] = (full.L - full.model(st, lay)) * s
+    weights = np.zeros(problem.radiance.shape)
+    weights[full.rows] = full.w * h_full
+    rho = st.rho.copy()
+    rho[~used] = np.nan
+    return SolveResult(
+        albedo=rho,
+        intensities=intensities,
+        colors=colors,
+        profiles=profiles,
+        cluster_used=used,
+        weights=weights,
+        residual=residual,
+        objective=float(objective),
+        iterations=int(iterations),
+        converged=bool(converged),
+        seconds=time.perf_counter() - t0,
+        light_share=share,
+        warnings=notes,
+        history=history,
+        method=options.method,
+    )
+
+
+def per_vertex_albedo(
+    radiance: np.ndarray,
+    indirect: np.ndarray,
+    transfer: sp.csr_matrix | np.ndarray,
+    lights: list[LightBlock],
+    result: SolveResult,
+    min_irradiance: float = 1e-9,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo of each vertex from the solved lighting (the last step of thesis 5.4).
+
+    With the lights fixed, eq. 5.6 has one unknown per vertex and channel, so its least
+    squares solution is ``rho_V = pi * Lbar_V / (E_ind(V) + F(V) . I)``. Values above 1
+    are kept (not clipped) and flagged: they are non-physical and mark errors in the
+    geometry, the radiance or the light model (thesis Fig. 5.10).
+
+    Parameters
+    ----------
+    radiance, indirect : ndarray, shape (n, 3)
+        ``Lbar`` and the rescaled ``E_ind`` of every vertex to solve.
+    transfer : matrix, shape (n, K)
+        The light transfer rows of these vertices.
+    lights : list of LightBlock
+        The lights, in column order.
+    result : SolveResult
+        The solved lighting.
+    min_irradiance : float
+        Irradiance below which the albedo is undetermined (NaN).
+
+    Returns
+    -------
+    albedo : ndarray, shape (n, 3)
+        Per-vertex albedo; NaN where the irradiance is below ``min_irradiance``.
+    nonphysical : ndarray of bool, shape (n,)
+        Vertices with some channel above 1.
+    """
+    intens = result.intensity_vector(lights)
+    irradiance = indirect + (transfer @ intens if len(intens) else 0.0)
+    irradiance = np.asarray(irradiance)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(irradiance > min_irradiance, np.pi * radiance / irradiance, np.nan)
+    nonphysical = np.any(albedo > 1.0, axis=1)
+    return albedo, nonphysical

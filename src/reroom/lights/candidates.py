@@ -1,0 +1,206 @@
+"""Bright connected components of the HDR mesh and their shape (thesis §5.5.1, §5.5.4).
+
+A *candidate* is a connected set of mesh vertices whose HDR luminance is above a
+threshold (:func:`bright_components`). :func:`describe_component` measures what the
+decision needs: size, area, principal axes (the thesis's PCA test for line lights),
+the mean normal, the height, and the *edge contrast* -- the component's radiance
+over that of the ring of vertices just outside it. An emitter's edge is a step (a
+panel at 5 next to a ceiling at 0.3), a lit pool of light fades out (contrast near
+1), which is how a lamp's bright spot on the ceiling is told from a ceiling panel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+__all__ = ["Component", "bright_components", "describe_component", "mesh_adjacency", "vertex_areas"]
+
+
+def mesh_adjacency(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """Symmetric ``(V, V)`` vertex adjacency of a triangle mesh (boolean CSR)."""
+    f = np.asarray(faces, np.int64)
+    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
+    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+    a = sp.coo_matrix((np.ones(len(i), bool), (i, j)), shape=(n_vertices, n_vertices)).tocsr()
+    return (a + a.T).astype(bool).tocsr()
+
+
+def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(V,)`` one third of the area of every face around each vertex (m²)."""
+    v = np.asarray(vertices, float)
+    f = np.asarray(faces, np.int64)
+    a = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    return np.bincount(f.ravel(), np.repeat(a / 3.0, 3), minlength=len(v))
+
+
+def bright_components(
+    adjacency: sp.csr_matrix, bright: np.ndarray
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Connected components of the bright vertices along mesh edges.
+
+    Returns
+    -------
+    label:
+        ``(V,)`` int32 component of each vertex, -1 where not bright.
+    members:
+        Vertex indices of each component, largest first.
+    """
+    idx = np.flatnonzero(bright)
+    label = np.full(len(bright), -1, np.int32)
+    if len(idx) == 0:
+        return label, []
+    sub = adjacency[idx][:, idx]
+    n, lab = connected_components(sub, directed=False)
+    order = np.argsort(-np.bincount(lab, minlength=n), kind="stable")
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n)
+    label[idx] = rank[lab]
+    members = [idx[lab == c] for c in order]
+    return label, members
+
+
+@dataclass
+class Component:
+    """Measurements of one bright component (world coordinates, metres).
+
+    Attributes
+    ----------
+    vertices:
+        Its vertex indices.
+    centroid:
+        Area-weighted centroid.
+    normal:
+        Area-weighted mean vertex normal, normalised (zero if they cancel out).
+    normal_spread:
+        Length of the unnormalised mean normal (1 = flat, ~0 = closed or curved).
+    area:
+        Surface area, m².
+    axes:
+        ``(3, 3)`` rows: the sides of the minimum-area bounding rectangle in the
+        plane of the two largest principal directions (longer first), then the
+        smallest principal direction.
+    extent:
+        ``(3,)`` max - min of the positions along each principal direction.
+    center:
+        Middle of the min/max range along each principal direction (world point).
+    eigenvalues:
+        ``(3,)`` variances along the principal directions.
+    mean_radiance:
+        ``(3,)`` area-weighted mean HDR radiance.
+    mean_luminance, peak_luminance:
+        Of the HDR luminance (peak: 95th percentile).
+    edge_contrast:
+        Mean luminance of the component over the median luminance of the observed
+        vertices within a few centimetres outside it (inf if none is observed).
+    """
+
+    vertices: np.ndarray
+    centroid: np.ndarray
+    normal: np.ndarray
+    normal_spread: float
+    area: float
+    axes: np.ndarray
+    extent: np.ndarray
+    center: np.ndarray
+    eigenvalues: np.ndarray
+    mean_radiance: np.ndarray
+    mean_luminance: float
+    peak_luminance: float
+    edge_contrast: float
+
+    @property
+    def size(self) -> tuple[float, float]:
+        """The two largest extents (m): length x width."""
+        return float(self.extent[0]), float(self.extent[1])
+
+
+def describe_component(
+    members: np.ndarray,
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    areas: np.ndarray,
+    radiance: np.ndarray,
+    luminance: np.ndarray,
+    observed: np.ndarray,
+    tree: cKDTree,
+    ring_radius: float,
+) -> Component:
+    """Measure one component (see :class:`Component`).
+
+    ``tree`` is a KD-tree of all mesh vertices; the ring used for the edge contrast
+    is every vertex within ``ring_radius`` of the component but not in it (by
+    distance, not along edges: a scanned panel is often a separate piece of mesh).
+    """
+    p = vertices[members]
+    w = np.maximum(areas[members], 1e-12)
+    ws = w.sum()
+    centroid = (p * w[:, None]).sum(0) / ws
+    mean_n = (normals[members] * w[:, None]).sum(0) / ws
+    spread = float(np.linalg.norm(mean_n))
+    normal = mean_n / spread if spread > 1e-9 else np.zeros(3)
+    q = p - centroid
+    cov = (q * w[:, None]).T @ q / ws
+    evals, evecs = np.linalg.eigh(cov)
+    order = np.argsort(evals)[::-1]
+    evals, axes = np.maximum(evals[order], 0.0), evecs[:, order].T
+    axes = _min_area_axes(q, axes)
+    coords = q @ axes.T
+    lo, hi = coords.min(0), coords.max(0)
+    center = centroid + ((lo + hi) / 2) @ axes
+    lum = luminance[members]
+    ring = _outer_ring(members, p, tree, ring_radius)
+    ring = ring[observed[ring]]
+    outside = float(np.median(luminance[ring])) if len(ring) else 0.0
+    mean_lum = float((lum * w).sum() / ws)
+    contrast = mean_lum / outside if outside > 0 else float("inf")
+    return Component(
+        vertices=members,
+        centroid=centroid,
+        normal=normal,
+        normal_spread=spread,
+        area=float(areas[members].sum()),
+        axes=axes,
+        extent=hi - lo,
+        center=center,
+        eigenvalues=evals,
+        mean_radiance=(radiance[members] * w[:, None]).sum(0) / ws,
+        mean_luminance=mean_lum,
+        peak_luminance=float(np.percentile(lum, 95)),
+        edge_contrast=contrast,
+    )
+
+
+def _min_area_axes(q: np.ndarray, axes: np.ndarray, steps: int = 90) -> np.ndarray:
+    """Turn the two in-plane principal axes to the minimum-area bounding rectangle.
+
+    PCA axes of a square (or any shape with equal in-plane variances) are arbitrary:
+    a 0.6 m square panel would measure 0.85 m along its diagonal. The rectangle of
+    least area over ``steps`` rotations (1 degree apart) gives the true sides; the
+    longer side comes first.
+    """
+    uv = q @ axes[:2].T
+    theta = np.linspace(0.0, np.pi / 2, steps, endpoint=False)
+    c, s = np.cos(theta), np.sin(theta)
+    x = uv[:, :1] * c + uv[:, 1:2] * s  # (n, steps)
+    y = -uv[:, :1] * s + uv[:, 1:2] * c
+    area = np.ptp(x, axis=0) * np.ptp(y, axis=0)
+    best = int(np.argmin(area))
+    a0 = c[best] * axes[0] + s[best] * axes[1]
+    a1 = -s[best] * axes[0] + c[best] * axes[1]
+    if np.ptp(y[:, best]) > np.ptp(x[:, best]):
+        a0, a1 = a1, a0
+    return np.stack([a0, a1, axes[2]])
+
+
+def _outer_ring(
+    members: np.ndarray, points: np.ndarray, tree: cKDTree, radius: float
+) -> np.ndarray:
+    """Vertices within ``radius`` of the ``members`` (at ``points``) but not members."""
+    near = tree.query_ball_point(points, radius, return_sorted=False)
+    found = np.unique(np.concatenate([np.asarray(x, np.int64) for x in near]))
+    return np.setdiff1d(found, members, assume_unique=True)

@@ -1,0 +1,209 @@
+"""The inverse-rendering solve (eq. 5.7) on synthetic transfer matrices with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from reroom.invert.solve import (
+    InverseProblem,
+    LightBlock,
+    SolveError,
+    SolveOptions,
+    indirect_weights,
+    per_vertex_albedo,
+    solve_lighting,
+)
+from reroom.invert.synthetic import synthetic_problem
+
+EXACT = SolveOptions(smooth_lambda=0.0, huber_delta=None, reweight_c=None, tolerance=1e-12)
+
+
+def _seen_error(result, truth) -> float:
+    worst = 0.0
+    for name, true in truth.intensities.items():
+        seen = truth.seen[name]
+        err = np.abs(result.intensities[name][seen] - true[seen]).max() / np.abs(true).max()
+        worst = max(worst, err)
+    return worst
+
+
+def test_exact_problem_with_every_light_kind_is_recovered() -> None:
+    problem, truth = synthetic_problem(1500, seed=1)
+    result = solve_lighting(problem, EXACT)
+    assert result.converged
+    np.testing.assert_allclose(result.albedo, truth.albedo, atol=1e-6)
+    assert _seen_error(result, truth) < 1e-6
+    for name in ("lamp", "tube"):
+        color = result.colors[name]
+        assert np.linalg.norm(color) == pytest.approx(1.0, abs=1e-9)
+        # monochrome: every bin's RGB is the same colour times a scalar
+        np.testing.assert_allclose(
+            result.intensities[name], np.outer(result.profiles[name], color), atol=1e-12
+        )
+
+
+def test_alternating_solver_recovers_an_uncoupled_problem() -> None:
+    problem, truth = synthetic_problem(1500, lights=("area", "window"), seed=4)
+    opts = SolveOptions(
+        method="alternating",
+        smooth_lambda=0.0,
+        huber_delta=None,
+        reweight_c=None,
+        max_iterations=400,
+        tolerance=1e-14,
+    )
+    result = solve_lighting(problem, opts)
+    np.testing.assert_allclose(result.albedo, truth.albedo, rtol=1e-4)
+    assert _seen_error(result, truth) < 1e-3
+
+
+def test_huber_resists_outlier_vertices() -> None:
+    problem, truth = synthetic_problem(2000, seed=2, noise=0.01, outlier_fraction=0.1)
+    plain = solve_lighting(problem, SolveOptions(huber_delta=None, reweight_c=None))
+    robust = solve_lighting(problem, SolveOptions(huber_delta=0.02, reweight_c=None))
+    err_plain = np.abs(plain.albedo / truth.albedo - 1).max()
+    err_robust = np.abs(robust.albedo / truth.albedo - 1).max()
+    assert err_robust < 0.02
+    assert err_robust < 0.5 * err_plain
+    # the outliers end up with the smallest weights
+    w = robust.weights.mean(axis=1)
+    assert np.median(w[truth.outliers]) < 0.5 * np.median(np.delete(w, truth.outliers))
+
+
+def test_intensities_stay_nonnegative_under_noise() -> None:
+    problem, _ = synthetic_problem(1500, seed=5, noise=0.05)
+    result = solve_lighting(problem)
+    for values in result.intensities.values():
+        assert values.min() >= 0.0
+    assert np.all((result.albedo >= 0) & (result.albedo < 1))
+
+
+def test_smoothness_fills_window_cells_no_vertex_sees() -> None:
+    problem, truth = synthetic_problem(1500, lights=("window",), seed=3)
+    result = solve_lighting(problem, SolveOptions(huber_delta=None, reweight_c=None))
+    sky = result.intensities["window"]
+    unseen = ~truth.seen["window"]
+    assert unseen.sum() > 20
+    seen_vals = sky[~unseen]
+    # harmonic fill: within the range of the seen cells, and not zero
+    assert sky[unseen].min() > 0.5 * seen_vals.min()
+    assert sky[unseen].max() <= seen_vals.max() * (1 + 1e-6)
+    without = solve_lighting(problem, EXACT)
+    assert without.intensities["window"][unseen].max() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_monochrome_colour_is_recovered_under_noise() -> None:
+    problem, truth = synthetic_problem(2000, lights=("point",), seed=6, noise=0.02)
+    result = solve_lighting(problem, SolveOptions(reweight_c=None))
+    true_color = truth.intensities["lamp"][0] / np.linalg.norm(truth.intensities["lamp"][0])
+    np.testing.assert_allclose(result.colors["lamp"], true_color, atol=0.01)
+
+
+def test_reweighting_of_eq_5_8() -> None:
+    radiance = np.array([[0.5, 1.0, 2.0]])
+    indirect = np.array([[1.0, 1.0, 1.0]])
+    w = indirect_weights(radiance, indirect, c=10.0)
+    np.testing.assert_allclose(w, [[1.0, 1.0, np.exp(-10.0)]])
+    assert indirect_weights(np.ones((1, 3)), np.zeros((1, 3)), floor=1e-3).min() == 1e-3
+
+
+def test_light_that_explains_nothing_is_reported() -> None:
+    problem, _ = synthetic_problem(1500, lights=("area", "point"), seed=7)
+    extra = sp.csr_matrix(np.random.default_rng(0).uniform(0, 0.01, size=(1500, 1)))
+    dark = InverseProblem(
+        radiance=problem.radiance,
+        indirect=problem.indirect,
+        cluster=problem.cluster,
+        cluster_names=problem.cluster_names,
+        transfer=sp.hstack([problem.transfer, extra]).tocsr(),
+        lights=[*problem.lights, LightBlock("switched_off", "area", 1)],
+    )
+    result = solve_lighting(dark, EXACT)
+    assert result.intensities["switched_off"].max() < 1e-6
+    assert any("switched_off" in w and "explains nothing" in w for w in result.warnings)
+
+
+def test_light_no_vertex_sees_and_no_lights() -> None:
+    problem, truth = synthetic_problem(800, lights=("area",), seed=8)
+    blind = InverseProblem(
+        radiance=problem.radiance,
+        indirect=problem.indirect,
+        cluster=problem.cluster,
+        cluster_names=problem.cluster_names,
+        transfer=sp.hstack([problem.transfer, sp.csr_matrix((800, 2))]).tocsr(),
+        lights=[*problem.lights, LightBlock("hidden", "area", 2)],
+    )
+    result = solve_lighting(blind, EXACT)
+    assert any("hidden" in w and "no clustered vertex" in w for w in result.warnings)
+    np.testing.assert_allclose(result.albedo, truth.albedo, atol=1e-6)
+
+    # no lights at all: the albedo explains everything with indirect light only
+    none = InverseProblem(
+        radiance=problem.indirect * 0.2 / np.pi,
+        indirect=problem.indirect,
+        cluster=problem.cluster,
+        cluster_names=problem.cluster_names,
+        transfer=sp.csr_matrix((800, 0)),
+        lights=[],
+    )
+    result = solve_lighting(none, EXACT)
+    np.testing.assert_allclose(result.albedo, 0.2, atol=1e-9)
+    assert any("no lights" in w for w in result.warnings)
+
+
+def test_small_and_empty_clusters_are_left_out_with_a_warning() -> None:
+    problem, truth = synthetic_problem(1500, lights=("area", "window"), seed=9)
+    cluster = problem.cluster.copy()
+    ceiling = np.flatnonzero(cluster == 2)
+    cluster[ceiling[5:]] = 0  # only 5 ceiling vertices remain...
+    radiance = problem.radiance.copy()
+    radiance[ceiling[5:]] *= truth.albedo[0] / truth.albedo[2]  # ...the rest became wall
+    names = [*problem.cluster_names, "door"]
+    small = InverseProblem(
+        radiance, problem.indirect, cluster, names, problem.transfer, problem.lights
+    )
+    result = solve_lighting(small, EXACT)
+    assert not result.cluster_used[2] and not result.cluster_used[3]
+    assert np.isnan(result.albedo[2]).all() and np.isnan(result.albedo[3]).all()
+    np.testing.assert_allclose(result.albedo[:2], truth.albedo[:2], atol=1e-6)
+    text = " ".join(result.warnings)
+    assert "'ceiling' has only 5" in text and "'door' has no observed vertex" in text
+
+
+def test_bad_shapes_raise() -> None:
+    problem, _ = synthetic_problem(100, lights=("area",), seed=0)
+    bad = InverseProblem(
+        problem.radiance,
+        problem.indirect,
+        problem.cluster,
+        problem.cluster_names,
+        problem.transfer,
+        [LightBlock("panel", "area", 2)],
+    )
+    with pytest.raises(SolveError, match="transfer has shape"):
+        solve_lighting(bad)
+    with pytest.raises(SolveError, match="unknown solve method"):
+        solve_lighting(problem, SolveOptions(method="newton"))  # type: ignore[arg-type]
+
+
+def test_subset_solve_matches_the_full_solve() -> None:
+    problem, truth = synthetic_problem(3000, lights=("area", "window"), seed=10)
+    result = solve_lighting(problem, SolveOptions(max_vertices=1000, reweight_c=None))
+    assert any("solved on" in w for w in result.warnings)
+    np.testing.assert_allclose(result.albedo, truth.albedo, rtol=1e-3)
+    assert np.isfinite(result.residual[problem.cluster >= 0]).all()
+
+
+def test_per_vertex_albedo_flags_nonphysical_values() -> None:
+    problem, truth = synthetic_problem(600, lights=("area", "point"), seed=11)
+    result = solve_lighting(problem, EXACT)
+    radiance = problem.radiance.copy()
+    radiance[:10] *= 3.0 / truth.albedo[problem.cluster[:10]].min()  # too bright: rho > 1
+    albedo, nonphysical = per_vertex_albedo(
+        radiance, problem.indirect, problem.transfer, problem.lights, result
+    )
+    np.testing.assert_allclose(albedo[10:], truth.albedo[problem.cluster[10:]], rtol=1e-6)
+    assert nonphysical[:10].all() and not nonphysical[10:].any()
+    assert albedo[:10].max() > 1.0  # kept, not clipped
