@@ -207,7 +207,7 @@ class SolveOptions:
     huber_delta: float | None = 0.05
     reweight_c: float | None = 10.0
     min_weight: float = 1e-4
-    smooth_lambda: float = 1e-3
+    smooth_lambda: float = 1e-5
     rho_max: float = 1.0 - 1e-6
     min_cluster_vertices: int = 30
     max_vertices: int | None = 20000
