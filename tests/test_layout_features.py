@@ -187,6 +187,15 @@ def test_rays_through_a_window_hole_mark_it_open():
     assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((1.0, 2.2, 0.9, 2.0), abs=0.11)
     assert g.surface[0].sum() > 0
 
+    # See-through only (no image read, no edges): the same opening evidence.
+    g2 = WallGrids.empty(walls, 0.1, 0.0, 2.5)
+    for fr in frames:
+        fr.load_image = None  # type: ignore[assignment]  # must not be called
+    accumulate_frames(g2, frames, RayCaster(mesh), np.eye(3), face_wall, edges=False)
+    for name in ("surface", "shallow", "deep", "through"):
+        np.testing.assert_array_equal(getattr(g2, name)[0], getattr(g, name)[0])
+    assert g2.fh[0].sum() == 0 and g2.n[0].sum() == 0
+
 
 # ----------------------------------------------------------------------------- labels
 

@@ -66,7 +66,11 @@ class LayoutOptions:
     features:
         Find baseboards, doors, windows and passages (needs the frames).
     max_frames:
-        Frames used for the image evidence (evenly spread through the scan).
+        Frames used for the see-through evidence (openings), evenly spread through the
+        scan; rays through every other pixel, no image read.
+    edge_frames:
+        Of those, frames (evenly spread) whose pixels also give the oriented edges
+        (doors, baseboards): full resolution, the image read and filtered.
     max_width:
         Frames are downscaled by an integer factor to at most this width.
     wall_cell:
@@ -90,6 +94,7 @@ class LayoutOptions:
     close_steps: int = 2
     features: bool = True
     max_frames: int = 120
+    edge_frames: int = 40
     max_width: int = 320
     wall_cell: float = 0.02
     radiance: Any = None
@@ -274,16 +279,25 @@ def layout_scan(
 
             caster = RayCaster(mesh)
             frames = select_frames(scan.frames, opt.max_frames)
-            accumulate_frames(
-                grids,
-                frames,
-                caster,
-                st.rotation,
-                face_wall,
-                opt.max_width,
-                _gamma(scan.meta, opt.gamma),
-                progress=lambda d, n: progress("frames", d, n),
-            )
+            with_edges = select_frames(frames, opt.edge_frames)
+            chosen = {id(f) for f in with_edges}
+            through_only = [f for f in frames if id(f) not in chosen]
+            n_all = len(frames)
+            for batch, edges, start in (
+                (with_edges, True, 0),
+                (through_only, False, len(with_edges)),
+            ):
+                accumulate_frames(
+                    grids,
+                    batch,
+                    caster,
+                    st.rotation,
+                    face_wall,
+                    opt.max_width,
+                    _gamma(scan.meta, opt.gamma),
+                    progress=lambda d, n, s0=start: progress("frames", s0 + d, n_all),
+                    edges=edges,
+                )
         if lum is not None:
             accumulate_bright(grids, st.xyz, lum, fwall, opt.bright_factor)
         _lap(timings, cpu, "evidence", t)

@@ -236,6 +236,8 @@ def accumulate_frames(
     deep_min: float = 0.06,
     recess_max: float = 0.3,
     progress: Callable[[int, int], None] | None = None,
+    edges: bool = True,
+    through_stride: int = 2,
 ) -> None:
     """Add the edge and see-through evidence of ``frames`` to ``grids`` (in place).
 
@@ -256,6 +258,13 @@ def accumulate_frames(
         A ray that crossed a wall plane and ended within ``surface_tol`` of it saw the
         wall; up to ``deep_min`` behind it, a shallow recess; up to ``recess_max``, a
         deep one; further, an opening.
+    edges:
+        Also accumulate the oriented edges (needs the pixels). ``False``: see-through
+        evidence only, from every ``through_stride``-th pixel in each direction, without
+        reading the image -- what extra frames add cheaply for openings that few frames
+        look through.
+    through_stride:
+        Pixel stride of the see-through rays (openings are tens of pixels across).
     """
     a, t, nin, length = wall_frames(grids.walls)
     zf, zc = grids.floor_z, grids.ceiling_z
@@ -268,22 +277,38 @@ def accumulate_frames(
     for fi, frame in enumerate(frames):
         k = frame.intrinsics
         factor = max(1, int(np.ceil(k.width / max_width)))
-        img = downscale(frame.load_image(), factor)
-        h, w = img.shape[:2]
+        if edges:
+            img = downscale(frame.load_image(), factor)
+            h, w = img.shape[:2]
+        else:
+            h, w = k.height // factor, k.width // factor
         key = (k, w, h, factor)
         if key not in ray_cache:
             ray_cache[key] = _camera_rays(frame, w, h, factor)
         uv, d_cam = ray_cache[key]
         r_mesh = frame.c2w[:3, :3]
-        dirs = rotate(d_cam, r_mesh)
-        hits = caster.intersect(frame.center, dirs)
         o_al = rotation @ frame.center
         d_al = rotate(d_cam, rotation @ r_mesh)
-        t_hit = np.where(hits.hit, hits.t, np.inf)
-        fw = np.where(hits.hit, face_wall[np.maximum(hits.face, 0)], -1)
+        # Every other pixel in each direction for the see-through rays (or every
+        # ``through_stride``-th): openings are tens of pixels across, and a quarter of the
+        # rays cuts this part's cost by four (measured: same openings).
+        sub = (
+            (np.arange(h)[:, None] % through_stride == 0)
+            & (np.arange(w)[None, :] % through_stride == 0)
+        ).ravel()
+        sub_idx = np.flatnonzero(sub)
+        if edges:
+            hits = caster.intersect(frame.center, rotate(d_cam, r_mesh))
+            t_hit = np.where(hits.hit, hits.t, np.inf)
+            t_sub = t_hit[sub_idx]
+        else:
+            hits = caster.intersect(frame.center, rotate(d_cam[sub_idx], r_mesh))
+            t_sub = np.where(hits.hit, hits.t, np.inf)
+        d_sub = d_al[sub_idx]
 
         # --- edges on the wall surfaces the pixels see -------------------------------------
-        seen = np.flatnonzero(fw >= 0)
+        fw = np.where(hits.hit, face_wall[np.maximum(hits.face, 0)], -1) if edges else None
+        seen = np.flatnonzero(fw >= 0) if edges else np.zeros(0, np.int64)
         if len(seen):
             logl = log_luminance(img, gamma)
             gy = (ndimage.sobel(logl, axis=0) / 8.0).ravel()[seen]
@@ -302,12 +327,6 @@ def accumulate_frames(
             acc["fv"].append((flat[ok], ev[ok]))
 
         # --- rays through the wall planes ----------------------------------------------------
-        # Every other pixel in each direction: openings are tens of pixels across, and a
-        # quarter of the rays cuts this part's cost by four (measured: same openings).
-        sub = ((np.arange(h)[:, None] % 2 == 0) & (np.arange(w)[None, :] % 2 == 0)).ravel()
-        sub_idx = np.flatnonzero(sub)
-        d_sub = d_al[sub_idx]
-        t_sub = t_hit[sub_idx]
         for wk in range(n_walls):
             side = (o_al[:2] - a[wk]) @ nin[wk]  # > 0: camera on the room side
             if side <= 0:
