@@ -1,0 +1,213 @@
+"""The recovered room model as a Mitsuba 3 scene dict (thesis §5.7: "rendered with PBRT").
+
+:func:`model_scene` turns what ``reroom invert`` wrote (``SCAN/invert/scene.json`` and
+``albedo.ply``) plus the light geometry of ``reroom lights`` into a plain Mitsuba scene
+dict, in the spirit of Mitsuba's own Python API: edits are changes to that dict (or to the
+model documents before it), and the same path tracer that made the synthetic truth
+renders it.
+
+* **Surfaces**: the scan mesh with its per-vertex albedo (``albedo.ply``) through a
+  ``mesh_attribute`` texture. Vertices without an albedo (unobserved, or fixtures of
+  lights) take the median albedo of the solved ones; non-physical values (> 1) are
+  clipped to ``max_albedo`` for rendering only (``albedo.ply`` keeps them).
+* **Area lights**: the faces of each area light's own vertices (at least two of three, so
+  the light ends half-way into its rim triangles as in the transfer), emitting the solved
+  radiance on their front side.
+* **Windows**: a black rectangle on the window's opening carrying a ``reroom_portal``
+  emitter that shows the solved distant light (``window_<name>.exr``).
+* **Point lights**: ``reroom_goniometric`` with the solved inclination profile about the
+  light's axis (``interpolation`` between bin centres, or constant per bin as solved).
+* **Line lights**: ``reroom_line`` with the solved profile around the line.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from reroom.errors import ReroomError, ScanError
+from reroom.io.images import read_exr
+from reroom.io.mesh import read_ply, write_ply
+
+__all__ = ["model_scene", "point_light_table"]
+
+
+def point_light_table(
+    profile: np.ndarray, interpolation: str = "linear", n_theta: int = 181
+) -> np.ndarray:
+    """A ``(n_theta, 2)`` goniometric node table (theta from the nadir) of an axial profile.
+
+    ``profile[k]`` is the intensity of bin ``k`` of theta *from the axis* (``(k + 0.5) pi /
+    bins`` at its centre), as ``reroom invert`` solves it; the goniometric emitter's theta
+    runs from the nadir, i.e. ``pi -`` that.
+    """
+    from reroom.render.line_emitter import line_profile_value
+
+    theta_nadir = np.linspace(0.0, np.pi, n_theta)
+    values = line_profile_value(np.asarray(profile, float), np.pi - theta_nadir, interpolation)
+    return np.stack([values, values], axis=1)
+
+
+def model_scene(
+    scan_dir: str | Path,
+    invert_dir: str | Path | None = None,
+    lights_dir: str | Path | None = None,
+    work_dir: str | Path | None = None,
+    *,
+    max_depth: int = 8,
+    interpolation: str = "linear",
+    max_albedo: float = 0.95,
+) -> dict[str, Any]:
+    """Build the Mitsuba scene dict of a recovered room model (no sensor).
+
+    Parameters
+    ----------
+    scan_dir:
+        The scan folder.
+    invert_dir, lights_dir:
+        Outputs of ``reroom invert`` and ``reroom lights`` (default ``SCAN/invert``,
+        ``SCAN/lights``).
+    work_dir:
+        Where the render meshes are written (default ``SCAN/render/model``).
+    max_depth:
+        Path depth of the ``path`` integrator.
+    interpolation:
+        Point and line light profiles between bin centres: ``"linear"`` (smoother
+        renders) or ``"constant"`` (exactly the solved basis).
+    max_albedo:
+        Rendering clip of per-vertex albedo.
+
+    Raises
+    ------
+    ScanError
+        When a file of the model is missing or unreadable (names it).
+    ReroomError
+        When the model has no light.
+    """
+    from reroom.render import mitsuba
+    from reroom.render.emitters import goniometric_light, luminaire_frame, portal_emitter
+    from reroom.render.line_emitter import line_light
+
+    mi = mitsuba()
+    scan_dir = Path(scan_dir)
+    inv = Path(invert_dir) if invert_dir is not None else scan_dir / "invert"
+    lit = Path(lights_dir) if lights_dir is not None else scan_dir / "lights"
+    work = Path(work_dir) if work_dir is not None else scan_dir / "render" / "model"
+    scene_path = inv / "scene.json"
+    try:
+        model = json.loads(scene_path.read_text())
+    except OSError as exc:
+        raise ScanError(scene_path, "is missing: run `reroom invert SCAN` first") from exc
+    except ValueError as exc:
+        raise ScanError(scene_path, f"is not valid JSON ({exc})") from exc
+    albedo_mesh = read_ply(inv / model.get("albedo_file", "albedo.ply"))
+    attrs = albedo_mesh.vertex_attributes
+    if "albedo" not in attrs:
+        raise ScanError(inv / "albedo.ply", "has no albedo_r/g/b vertex properties")
+    albedo = np.asarray(attrs["albedo"], np.float64)
+    known = np.all(albedo >= 0, axis=1) & np.all(np.isfinite(albedo), axis=1)
+    fill = np.median(albedo[known], axis=0) if known.any() else np.full(3, 0.5)
+    albedo = np.where(known[:, None], albedo, fill)
+    albedo = np.clip(albedo, 0.0, max_albedo)
+
+    vertices = np.asarray(albedo_mesh.vertices)
+    faces = np.asarray(albedo_mesh.faces)
+    light_id = None
+    ids_path = lit / "lights_vertices.npz"
+    if ids_path.is_file():
+        with np.load(ids_path) as z:
+            light_id = np.asarray(z["light_id"])
+        if len(light_id) != len(vertices):
+            raise ScanError(ids_path, f"has {len(light_id)} ids for {len(vertices)} vertices")
+
+    work.mkdir(parents=True, exist_ok=True)
+    scene: dict[str, Any] = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": int(max_depth)},
+    }
+    emitting = np.zeros(len(faces), bool)
+    n_lights = 0
+    for k, light in enumerate(model.get("lights", [])):
+        kind, geo, name = light["type"], light.get("geometry", {}), light["name"]
+        if kind == "area":
+            if light_id is None or "light_index" not in geo:
+                raise ScanError(ids_path, f"is needed for area light {name!r}")
+            members = light_id == int(geo["light_index"])
+            sel = members[faces].sum(axis=1) >= 2
+            if not sel.any():
+                continue
+            emitting |= sel
+            path = write_ply(
+                work / f"light_{k:02d}.ply",
+                trimesh.Trimesh(vertices, faces[sel], process=False),
+                {},
+            )
+            scene[f"light_{k:02d}"] = {
+                "type": "ply",
+                "filename": str(path),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
+                "emitter": {
+                    "type": "area",
+                    "radiance": {"type": "rgb", "value": [float(x) for x in light["radiance"]]},
+                },
+            }
+        elif kind == "window":
+            exr = inv / light.get("environment_exr", f"window_{name}.exr")
+            env = np.maximum(read_exr(exr)[..., :3], 0.0)
+            centre = np.asarray(geo["centre"], float)
+            hu, hv = np.asarray(geo["half_u"], float), np.asarray(geo["half_v"], float)
+            normal = np.asarray(geo["normal"], float)
+            m = np.eye(4)
+            m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = hu, hv, normal, centre
+            if np.linalg.det(m[:3, :3]) < 0:
+                m[:3, 0] = -hu
+            scene[f"light_{k:02d}"] = {
+                "type": "rectangle",
+                "to_world": mi.ScalarTransform4f(m.tolist()),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
+                "emitter": portal_emitter(env),
+            }
+        elif kind == "point":
+            dist = light["distribution"]
+            axis = np.asarray(geo.get("axis", [0.0, 0.0, 1.0]), float)
+            scene[f"light_{k:02d}"] = goniometric_light(
+                point_light_table(dist["profile"], interpolation),
+                geo["position"],
+                frame=luminaire_frame(nadir=-axis),
+                color=light.get("color", [1.0, 1.0, 1.0]),
+            )
+        elif kind == "line":
+            dist = light["distribution"]
+            scene[f"light_{k:02d}"] = line_light(
+                geo["p0"],
+                geo["p1"],
+                np.asarray(dist["profile"], float),
+                up=geo.get("d_perp", [0.0, 0.0, 1.0]),
+                color=light.get("color", [1.0, 1.0, 1.0]),
+                interpolation=interpolation,
+            )
+        else:
+            raise ReroomError(f"{scene_path}: light {name!r} has an unknown type {kind!r}")
+        n_lights += 1
+    if n_lights == 0:
+        raise ReroomError(f"{scene_path}: the model has no light to render")
+
+    keep = ~emitting
+    room = write_ply(
+        work / "room.ply",
+        trimesh.Trimesh(vertices, faces[keep], process=False),
+        {"albedo": albedo.astype(np.float32)},
+    )
+    scene["room"] = {
+        "type": "ply",
+        "filename": str(room),
+        "bsdf": {
+            "type": "diffuse",
+            "reflectance": {"type": "mesh_attribute", "name": "vertex_albedo_color"},
+        },
+    }
+    return scene

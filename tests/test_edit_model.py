@@ -1,0 +1,84 @@
+"""The recovered model as a Mitsuba scene: conventions checked on a hand-made model."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.edit.model import model_scene, point_light_table
+from reroom.errors import ReroomError, ScanError
+from reroom.hdr.synthetic import box_room
+from reroom.io.mesh import write_ply
+from reroom.render.mitsuba_env import mitsuba_info
+
+pytestmark = pytest.mark.skipif(
+    not mitsuba_info().vectorized, reason="Python emitters need a JIT Mitsuba variant"
+)
+
+ALBEDO = 0.5
+LIGHT = np.array([2.0, 1.5, 2.0])
+# 8 bins of theta from the axis (up): nothing upwards, brighter straight down.
+PROFILE = [0.0, 0.0, 0.0, 0.0, 1.0, 2.0, 3.0, 4.0]
+
+
+def _model(tmp: Path, lights: list[dict]) -> Path:
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    scan = tmp / "scan"
+    (scan / "invert").mkdir(parents=True)
+    write_ply(
+        scan / "invert" / "albedo.ply",
+        trimesh.Trimesh(v, f, process=False),
+        {"albedo": np.full((len(v), 3), ALBEDO, np.float32)},
+    )
+    doc = {"format": "reroom-invert", "version": 1, "lights": lights, "albedo_file": "albedo.ply"}
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    return scan
+
+
+def test_point_light_profile_orientation_and_units(tmp_path: Path) -> None:
+    from reroom.edit import bake_vertex_radiance
+
+    light = {
+        "name": "lamp",
+        "type": "point",
+        "geometry": {"position": LIGHT.tolist(), "axis": [0.0, 0.0, 1.0]},
+        "color": [1.0, 1.0, 1.0],
+        "distribution": {"basis": "inclination", "bins": 8, "profile": PROFILE},
+    }
+    scan = _model(tmp_path, [light])
+    scene = model_scene(scan, max_depth=2, interpolation="constant")
+    # Floor points: direct light only (max_depth 2), closed form rho/pi I(theta) cos / d^2.
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(0.3, 3.7, (60, 1)), rng.uniform(0.3, 2.7, (60, 1)), np.zeros(60)]
+    baked = bake_vertex_radiance(scene, pts, np.tile([0.0, 0.0, 1.0], (60, 1)), spp=4)
+    d = pts - LIGHT  # from the light to the receiver
+    r2 = (d**2).sum(1)
+    theta = np.arccos(d[:, 2] / np.sqrt(r2))  # from the axis (up)
+    intensity = np.asarray(PROFILE)[np.minimum((theta / np.pi * 8).astype(int), 7)]
+    want = ALBEDO / math.pi * intensity * (-d[:, 2] / np.sqrt(r2)) / r2
+    # Away from bin edges (the table is sampled at nodes 1 degree apart).
+    edge = np.abs(theta / np.pi * 8 - np.round(theta / np.pi * 8)) < 0.05
+    np.testing.assert_allclose(baked.radiance[~edge, 0], want[~edge], rtol=2e-3)
+    # The ceiling gets nothing: the profile is dark upwards.
+    up = bake_vertex_radiance(scene, [[2.0, 1.5, 2.5]], [[0.0, 0.0, -1.0]], spp=4)
+    assert up.radiance.max() == 0.0
+
+
+def test_table_conversion_and_bad_models(tmp_path: Path) -> None:
+    table = point_light_table(PROFILE, "constant", n_theta=181)
+    assert table.shape == (181, 2)
+    assert table[0, 0] == PROFILE[-1]  # the nadir is the last bin from the axis
+    assert table[-1, 0] == PROFILE[0]
+    with pytest.raises(ScanError, match="run `reroom invert"):
+        model_scene(tmp_path / "nowhere")
+    scan = _model(tmp_path, [])
+    with pytest.raises(ReroomError, match="no light"):
+        model_scene(scan)
+    scan2 = _model(tmp_path / "b", [{"name": "x", "type": "laser", "geometry": {}}])
+    with pytest.raises(ReroomError, match="unknown type"):
+        model_scene(scan2)
