@@ -82,3 +82,52 @@ def test_table_conversion_and_bad_models(tmp_path: Path) -> None:
     scan2 = _model(tmp_path / "b", [{"name": "x", "type": "laser", "geometry": {}}])
     with pytest.raises(ReroomError, match="unknown type"):
         model_scene(scan2)
+
+
+def test_rerender_inputs_writes_the_comparison(tmp_path: Path) -> None:
+    from reroom.edit.rerender import rerender_inputs
+    from reroom.hdr.synthetic import write_projected_scan
+    from reroom.scan import Intrinsics, look_at
+
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    # The "photos": the room as the model below renders it, baked per vertex and
+    # projected; the comparison must then be close in mean.
+    from reroom.edit import bake_vertex_radiance
+
+    light = {
+        "name": "lamp",
+        "type": "point",
+        "geometry": {"position": LIGHT.tolist(), "axis": [0.0, 0.0, 1.0]},
+        "color": [1.0, 1.0, 1.0],
+        "distribution": {"basis": "inclination", "bins": 8, "profile": [3.0] * 8},
+    }
+    model_dir = _model(tmp_path / "m", [light])
+    scene = model_scene(model_dir)  # full light transport, as rerender_inputs renders
+    from reroom.hdr.observe import vertex_normals
+
+    tm = trimesh.Trimesh(v, f, process=False)
+    rad = bake_vertex_radiance(scene, v, vertex_normals(tm), spp=64).radiance
+    poses = [look_at([2.0, 1.5, 1.3], [2.0 + np.cos(a), 1.5 + np.sin(a), 1.0]) for a in (0, 2, 4)]
+    scan = write_projected_scan(
+        tmp_path / "scan",
+        v,
+        f,
+        rad,
+        poses,
+        Intrinsics.from_fov(48, 36, 70.0),
+        scales=np.ones((3, 3)),
+        noise_seed=None,
+    )
+    (scan / "invert").mkdir()
+    for name in ("scene.json", "albedo.ply"):
+        (scan / "invert" / name).write_bytes((model_dir / "invert" / name).read_bytes())
+    (scan / "hdr").mkdir()
+    frames = [{"scale": [1.0, 1.0, 1.0]} for _ in poses]
+    (scan / "hdr" / "exposures.json").write_text(
+        json.dumps({"response": "gamma2.2", "frames": frames})
+    )
+    doc = rerender_inputs(scan, frames=2, spp=4)
+    assert (scan / "invert" / "rerender.png").is_file()
+    assert json.loads((scan / "invert" / "rerender.json").read_text()) == doc
+    assert len(doc["frames"]) == 2
+    assert 0.9 < doc["median_ratio_of_means"] < 1.15  # measured 1.06 (4 spp, vertex projection)

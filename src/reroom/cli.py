@@ -378,6 +378,10 @@ def invert(
         float, typer.Option(help="One hemisphere receiver per voxel of this size, m (0: all).")
     ] = 0.1,
     pictures: Annotated[bool, typer.Option(help="Write diagrams and cube-map pictures.")] = True,
+    rerender: Annotated[
+        int,
+        typer.Option(help="Input frames to re-render from the model next to the photos (0: none)."),
+    ] = 4,
 ) -> None:
     """Inverse rendering: light intensities and distributions, albedos (thesis ch. 5)."""
     from reroom.invert.pipeline import InvertOptions, run_invert
@@ -399,6 +403,16 @@ def invert(
     console.print(table)
     for note in result.warnings:
         console.print(f"[yellow]note:[/] {note}")
+    if rerender > 0:
+        from reroom.edit.rerender import rerender_inputs
+
+        with _errors():
+            doc = rerender_inputs(scan, result.out_dir, frames=rerender)
+        console.print(
+            f"re-rendered {len(doc['frames'])} input frames: brightness "
+            f"{doc['median_ratio_of_means']:.2f} of the photos, relative L1 "
+            f"{doc['median_relative_l1']:.2f} (rerender.png)"
+        )
     console.print(f"[green]wrote[/] {result.out_dir}")
 
 
