@@ -19,6 +19,7 @@ import numpy as np
 import trimesh
 
 from reroom.io.atomic import atomic_path
+from reroom.io.images import linear_to_srgb
 from reroom.io.mesh import write_ply
 
 __all__ = ["BakedLighting", "bake_vertex_radiance", "export_baked", "tonemap_srgb8"]
@@ -76,9 +77,7 @@ def tonemap_srgb8(radiance: np.ndarray, exposure: float | None = None) -> tuple[
         lum = rad @ np.array([0.2126, 0.7152, 0.0722])
         lit = lum[lum > 0]
         exposure = 0.18 / float(np.median(lit)) if len(lit) else 1.0
-    x = np.clip(rad * exposure, 0.0, 1.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.round(srgb * 255.0).astype(np.uint8), float(exposure)
+    return np.round(linear_to_srgb(rad * exposure) * 255.0).astype(np.uint8), float(exposure)
 
 
 def export_baked(

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from reroom.io.atomic import atomic_path
+from reroom.io.images import linear_to_srgb
 from reroom.rays import RayCaster
 from reroom.scan import Frame, Intrinsics, look_at
 
@@ -29,11 +30,6 @@ __all__ = [
 
 #: Colour of unobserved surfaces in renders (a dull magenta nobody mistakes for radiance).
 UNOBSERVED = np.array([0.55, 0.25, 0.55])
-
-
-def _srgb(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
 def to_display(linear: np.ndarray, gain: float) -> np.ndarray:
@@ -139,7 +135,7 @@ def render_vertex_colors(
         frac = np.einsum("ij,ij->i", bary, np.asarray(valid, np.float64)[tri])
         col[frac < 0.5] = UNOBSERVED
     out = np.where(has[:, None], col, np.asarray(background, np.float64))
-    img = _srgb(out).reshape(intrinsics.height, intrinsics.width, 3)
+    img = linear_to_srgb(out).reshape(intrinsics.height, intrinsics.width, 3)
     return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
 
 

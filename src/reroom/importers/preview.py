@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from reroom.io.images import write_rgb8
+from reroom.io.images import linear_to_srgb, write_rgb8
 from reroom.scan.camera import Intrinsics, look_at
 
 
@@ -135,10 +135,7 @@ def render_mesh_image(
     # Where no surface is hit, show the background.
     bg = _srgb_to_linear(np.asarray(background, dtype=np.float64))
     rgb = rgb + (1.0 - alpha) * bg
-    srgb = np.where(
-        rgb <= 0.0031308, rgb * 12.92, 1.055 * np.power(np.maximum(rgb, 0), 1 / 2.4) - 0.055
-    )
-    return np.clip(np.round(srgb * 255.0), 0, 255).astype(np.uint8)
+    return np.clip(np.round(linear_to_srgb(rgb) * 255.0), 0, 255).astype(np.uint8)
 
 
 def render_mesh_preview(

@@ -15,6 +15,12 @@ from reroom.errors import ScanError
 from reroom.io.atomic import atomic_path
 
 
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) of linear values, clipped to [0, 1] first."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
 def image_size(path: str | Path) -> tuple[int, int]:
     """Return ``(width, height)`` of an image file, reading only its header.
 

@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from reroom.io.images import linear_to_srgb
+
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -49,7 +51,7 @@ def apply_response(x: np.ndarray, response: str) -> np.ndarray:
     if response == "gamma2.2":
         return x ** (1.0 / 2.2)
     if response == "srgb":
-        return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+        return linear_to_srgb(x)
     if response == "linear":
         return x
     raise ValueError(f"unknown response curve {response!r} (gamma2.2, srgb, linear)")
