@@ -204,7 +204,8 @@ def _residual_jac(x, n, b, vis, has_vis, params, k, dim, jac, want_jac):  # prag
 def _lm(x, n, b, vis, has_vis, params, k, dim, lo, hi, max_iter, stop_cost):  # pragma: no cover
     npar = params.shape[0]
     jac = np.empty((x.shape[0], npar))
-    dummy = np.empty((1, 1))
+    # Trial residuals need no Jacobian; numba still wants an array for the argument.
+    no_jac = np.empty((1, 1))
     r = _residual_jac(x, n, b, vis, has_vis, params, k, dim, jac, True)
     cost = np.dot(r, r)
     lam = 1e-3
@@ -231,7 +232,7 @@ def _lm(x, n, b, vis, has_vis, params, k, dim, lo, hi, max_iter, stop_cost):  # 
                 else:
                     v = max(v, 0.0)
                 trial[c] = v
-            rt = _residual_jac(x, n, b, vis, has_vis, trial, k, dim, dummy, False)
+            rt = _residual_jac(x, n, b, vis, has_vis, trial, k, dim, no_jac, False)
             ct = np.dot(rt, rt)
             if ct < cost:
                 rel = (cost - ct) / cost
