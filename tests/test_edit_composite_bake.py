@@ -132,3 +132,15 @@ def test_baked_floor_under_a_point_light_matches_closed_form(mi, tmp_path) -> No
     glb = trimesh.load(files["glb"], force="mesh")
     assert len(glb.vertices) > 0 and glb.visual.kind == "vertex"
     assert glb.visual.vertex_colors[:, :3].max() > 0
+
+
+def test_bake_and_export_reject_mismatched_input(tmp_path) -> None:
+    from reroom.edit.bake import BakedLighting
+
+    with pytest.raises(ValueError, match=r"\(V, 3\)"):
+        bake_vertex_radiance({"type": "scene"}, np.zeros((4, 3)), np.zeros((3, 3)))
+    mesh = trimesh.creation.box()
+    baked = BakedLighting(np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32), 4)
+    with pytest.raises(ValueError, match="3 baked values for a mesh of 8 vertices"):
+        export_baked(mesh, baked, tmp_path / "out")
+    assert not any((tmp_path / "out").glob("*.ply"))

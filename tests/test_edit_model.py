@@ -121,7 +121,16 @@ def test_rerender_inputs_writes_the_comparison(tmp_path: Path) -> None:
     (scan / "invert").mkdir()
     for name in ("scene.json", "albedo.ply"):
         (scan / "invert" / name).write_bytes((model_dir / "invert" / name).read_bytes())
+    # Bad input first: no exposures, then exposures for no frame.
+    with pytest.raises(ScanError, match="run `reroom hdr"):
+        rerender_inputs(scan, frames=2, spp=4)
     (scan / "hdr").mkdir()
+    (scan / "hdr" / "exposures.json").write_text(
+        json.dumps({"response": "gamma2.2", "frames": [{"scale": None} for _ in poses]})
+    )
+    with pytest.raises(ScanError, match="no frame an exposure"):
+        rerender_inputs(scan, frames=2, spp=4)
+    assert not (scan / "invert" / "rerender.json").exists()
     frames = [{"scale": [1.0, 1.0, 1.0]} for _ in poses]
     (scan / "hdr" / "exposures.json").write_text(
         json.dumps({"response": "gamma2.2", "frames": frames})

@@ -209,3 +209,20 @@ def test_bad_options_and_missing_scan(scan_dir, tmp_path):
         run_hdr(scan_dir, tmp_path / "out", HdrOptions(response="cubic"))
     with pytest.raises(ReroomError, match="unknown solver"):
         run_hdr(scan_dir, tmp_path / "out", HdrOptions(solve=SolveOptions(method="x")))
+
+
+def test_vertex_exr_round_trip_and_bad_input(tmp_path):
+    from reroom.hdr.vertex_exr import write_vertex_exr
+
+    rng = np.random.default_rng(0)
+    rad = (rng.random((2500, 3)) * 1e4).astype(np.float32)  # HDR: values far above 1
+    obs = rng.random(2500) > 0.3
+    write_vertex_exr(tmp_path / "v.exr", rad, obs)
+    back, back_obs = read_vertex_exr(tmp_path / "v.exr", 2500)
+    np.testing.assert_array_equal(back, rad)
+    np.testing.assert_array_equal(back_obs, obs)
+    with pytest.raises(ValueError, match="not a vertex image of 9000 vertices"):
+        read_vertex_exr(tmp_path / "v.exr", 9000)
+    with pytest.raises(ValueError, match=r"expected \(V, 3\)"):
+        write_vertex_exr(tmp_path / "bad.exr", rad[:, :2], obs)
+    assert not (tmp_path / "bad.exr").exists()

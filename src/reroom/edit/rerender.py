@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from reroom.errors import ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.images import write_rgb8
 
@@ -63,7 +64,13 @@ def rerender_inputs(
     inv = Path(invert_dir) if invert_dir is not None else scan_dir / "invert"
     out = Path(out_dir) if out_dir is not None else inv
     scan = load_scan(scan_dir)
-    exposures = json.loads((scan_dir / "hdr" / "exposures.json").read_text())
+    exp_path = scan_dir / "hdr" / "exposures.json"
+    try:
+        exposures = json.loads(exp_path.read_text())
+    except OSError as exc:
+        raise ScanError(exp_path, "is missing: run `reroom hdr SCAN` first") from exc
+    except ValueError as exc:
+        raise ScanError(exp_path, f"is not valid JSON ({exc})") from exc
     lut = response_lut(exposures.get("response", "auto"), scan.meta)
     scene = model_scene(scan_dir, inv, lights_dir, work_dir=out / "model_meshes")
     usable = [
@@ -72,7 +79,7 @@ def rerender_inputs(
         if f.get("scale") is not None and j < len(scan.frames)
     ]
     if not usable:
-        raise ValueError(f"{scan_dir}: no frame has an exposure to render at")
+        raise ScanError(exp_path, "gives no frame an exposure: nothing to render at")
     pick = [usable[int(i)] for i in np.linspace(0, len(usable) - 1, min(frames, len(usable)))]
     renderer: FrameRenderer | None = None
     rows, per_frame = [], []
