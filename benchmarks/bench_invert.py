@@ -8,7 +8,8 @@ error of the seen basis intensities.
 
 Part 2 (``--scan DIR [--true-radiance]``): the pipeline on a scan with hdr/, layout/,
 lights/ and ground truth, evaluated by :func:`reroom.invert.evaluate.evaluate_invert`
-against the issue's targets (albedo within 3 %, power within 5 %).
+against the issue's targets (albedo within 3 %, power within 5 %, point and line
+distributions within 10 % relative L2).
 
     .venv/bin/python benchmarks/bench_invert.py [--n 20000] [--scan DIR] [--true-radiance]
 """
@@ -81,6 +82,24 @@ def huber_table(n: int) -> None:
     print(f"\nload average: {os.getloadavg()}\n")
 
 
+def _l2_text(light: dict) -> str:
+    """``all / seen`` (and well-seen) relative L2 of a light's distribution, or ``-``."""
+    d = light.get("distribution") or {}
+    if d.get("relative_l2") is None:
+        return "-"
+    seen = d.get("relative_l2_seen")
+    if d.get("basis") == "cubemap":
+        return f"{d['relative_l2']:.1%} ({d['shown_cells']} cells shown)"
+    if seen is None:
+        return f"{d['relative_l2']:.1%} / ?"
+    well = d.get("relative_l2_well_seen")
+    well_text = "-" if well is None else f"{well:.1%}"
+    return (
+        f"{d['relative_l2']:.1%} / {seen:.1%} ({len(d['seen_bins'])} bins seen; "
+        f"well-seen bins {well_text})"
+    )
+
+
 def scan_table(scan: str, true_radiance: bool) -> None:
     from reroom.invert.evaluate import evaluate_invert, run_invert_true_radiance
     from reroom.invert.pipeline import InvertOptions, run_invert
@@ -99,12 +118,17 @@ def scan_table(scan: str, true_radiance: bool) -> None:
     for name, c in ev["clusters"].items():
         err = ", ".join(f"{x:+.1%}" for x in c.get("relative_error", []))
         print(f"| {name} | {err} | 3 % |")
-    print("\n| light | truth | power error (r, g, b) | target |")
-    print("|---|---|---|---|")
+    print(
+        "\n| light | truth | power error (r, g, b) | target | distribution rel. L2 "
+        "all / seen bins | target |"
+    )
+    print("|---|---|---|---|---|---|")
     for light in ev["lights"]:
         err = light.get("power_relative_error")
         text = ", ".join(f"{x:+.1%}" for x in err) if err else light.get("note", "")
-        print(f"| {light['name']} | {light.get('truth')} | {text} | 5 % |")
+        dist = _l2_text(light)
+        target = "10 %" if light["type"] in ("point", "line") else ""
+        print(f"| {light['name']} | {light.get('truth')} | {text} | 5 % | {dist} | {target} |")
     print(f"\nper-vertex albedo: {ev['per_vertex']}; missed lights: {ev['missed_lights']}\n")
 
 

@@ -8,7 +8,7 @@ Usage::
 
 ``SCAN`` must already hold ``hdr/`` (``reroom hdr``). The first form runs the stages as
 the command line does (the estimate never reads ``ground_truth/``), then compares with the
-truth: cluster albedo and light power errors (``reroom.invert.evaluate``) and the
+truth: cluster albedo, light power and distribution errors (``reroom.invert.evaluate``) and the
 re-render of input frames next to the photos (brightness ratio and relative L1). The
 second form only re-renders an existing model; ``--unit-scale-from-truth`` multiplies the
 render by the reference frame's true scale, for a model solved on the truth's radiance
@@ -94,10 +94,18 @@ def main() -> None:
         print("\n| cluster | albedo error (r/g/b) |\n|---|---|")
         for name, c in ev["clusters"].items():
             print(f"| {name} | {_pct(c['relative_error'])} |")
-        print("\n| light | truth | power error (r/g/b) |\n|---|---|---|")
+        print(
+            "\n| light | truth | power error (r/g/b) | distribution rel. L2 all / seen / well-seen |"
+            "\n|---|---|---|---|"
+        )
         for light in ev["lights"]:
             err = light.get("power_relative_error", light.get("note"))
-            print(f"| {light['name']} | {light.get('truth')} | {_pct(err)} |")
+            d = light.get("distribution") or {}
+            l2 = "-" if d.get("relative_l2") is None else f"{d['relative_l2']:.0%}"
+            for key in ("relative_l2_seen", "relative_l2_well_seen"):
+                if d.get(key) is not None:
+                    l2 += f" / {d[key]:.0%}"
+            print(f"| {light['name']} | {light.get('truth')} | {_pct(err)} | {l2} |")
 
 
 if __name__ == "__main__":

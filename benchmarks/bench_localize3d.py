@@ -11,6 +11,8 @@ table next to Table 6.2, then the time of one ``D``/``L`` field at the thesis's 
 
     .venv/bin/python benchmarks/bench_localize3d.py                     # the full run
     .venv/bin/python benchmarks/bench_localize3d.py --configs 1 --timing-resolution 128
+    .venv/bin/python benchmarks/bench_localize3d.py --configs 0 --timing-resolution 0 \
+        --localization-timing 3                       # one localization at |Q| = 60 000
 
 Success (both columns): mean squared error below ``1e-8 * mean(B^2)`` and every true light
 matched one-to-one within 0.025 (and 10% in intensity). Seeded and deterministic.
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -113,6 +116,57 @@ def field_timing(n_sites: int, resolution: int) -> dict[str, float]:
     return out
 
 
+def localization_timing(n_sites: int, voxels: int, k: int, seed: int, time_limit: float) -> dict:
+    """One full 3D localization (Algorithm 1) of a ``k``-light cube with ``n_sites`` sites."""
+    per_side = int(round(np.sqrt(n_sites / 6)))
+    pts, nrm = box_measurements(1.0, per_side)
+    lights, inten = random_cube_lights(k, np.random.default_rng([seed, k, 999]))
+    meas = Measurements(pts, nrm, render(pts, nrm, lights, inten))
+    grid = VoxelGrid.for_box([0, 0, 0], [1, 1, 1], 1.0 / voxels)
+    prop = FieldProposer3D(pts, nrm, grid, box_valid_mask(grid, 1.0, 0.04), RADIUS)
+    t, c = time.perf_counter(), time.process_time()
+    res = localize_lights(
+        meas,
+        prop,
+        box_light_bounds(1.0),
+        1e-8 * float(np.mean(meas.values**2)),
+        RefineParams(match_distance=0.1 * RADIUS, time_limit=time_limit),
+    )
+    ok = bool(res.success) and matches_truth(
+        res.positions, res.intensities, lights, inten, 0.025, 0.1
+    )
+    return {
+        "sites": len(pts),
+        "lights": k,
+        "solved": ok,
+        "reason": res.reason,
+        "iterations": res.iterations,
+        "wall_s": time.perf_counter() - t,
+        "cpu_s": time.process_time() - c,
+    }
+
+
+def draw_figure(folder: Path, per_side: int, voxels: int, seed: int) -> Path:
+    """Slices of ``D``, ``L``, ``V`` through the lights of room 0 of the 3-light row, with the
+    lights found by Algorithm 1 (like the thesis's Fig. 6.2 / 6.8, in 3D)."""
+    from reroom.localize.plot import plot_fields_3d
+
+    pts, nrm = box_measurements(1.0, per_side)
+    lights, inten = random_cube_lights(3, np.random.default_rng([seed, 3, 0]))
+    meas = Measurements(pts, nrm, render(pts, nrm, lights, inten))
+    grid = VoxelGrid.for_box([0, 0, 0], [1, 1, 1], 1.0 / voxels)
+    prop = FieldProposer3D(pts, nrm, grid, box_valid_mask(grid, 1.0, 0.04), RADIUS)
+    res = localize_lights(
+        meas, prop, box_light_bounds(1.0), 1e-8 * float(np.mean(meas.values**2)),
+        RefineParams(match_distance=0.1 * RADIUS, time_limit=600),
+    )  # fmt: skip
+    folder.mkdir(parents=True, exist_ok=True)
+    return plot_fields_3d(
+        prop, meas.values, folder / "localize_fields_3d.png", lights, res.positions,
+        title=f"3-light cube, {len(pts)} sites, {voxels}^3 voxels: {res.reason}",
+    )  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--configs", type=int, default=5, help="rooms per light count")
@@ -124,7 +178,16 @@ def main() -> None:
     ap.add_argument("--timing-sites", type=int, default=60000)
     ap.add_argument("--timing-resolution", type=int, default=256, help="0: skip the timing")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--figures", type=Path, help="draw slices of D, L, V of a 3-light cube here")
+    ap.add_argument(
+        "--localization-timing",
+        type=int,
+        default=0,
+        help="also time one full localization of this many lights at --timing-sites (0: skip)",
+    )
     args = ap.parse_args()
+    if args.figures is not None:
+        print(f"wrote {draw_figure(args.figures, args.per_side, args.voxels, args.seed)}")
     pts, nrm = box_measurements(1.0, args.per_side)
     grid = VoxelGrid.for_box([0, 0, 0], [1, 1, 1], 1.0 / args.voxels)
     valid = box_valid_mask(grid, 1.0, 0.04)
@@ -162,6 +225,15 @@ def main() -> None:
             f"D+L {t['idf_s']:.1f} s wall ({t['idf_cpu']:.1f} CPU s), V (count, r = 2) "
             f"{t['votes_s']:.1f} s; thesis: about 1 hour at 512^3 on a Titan X. "
             f"Load {os.getloadavg()}."
+        )
+    if args.localization_timing > 0:
+        t = localization_timing(
+            args.timing_sites, args.voxels, args.localization_timing, args.seed, args.time_limit
+        )
+        print(
+            f"\nOne localization, |Q| = {t['sites']}, {t['lights']} lights, {args.voxels}^3 "
+            f"voxels: solved {t['solved']} ({t['reason']}, {t['iterations']} iterations), "
+            f"{t['wall_s']:.0f} s wall, {t['cpu_s']:.0f} CPU s. Load {os.getloadavg()}."
         )
 
 

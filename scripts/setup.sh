@@ -39,6 +39,23 @@ if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then
   fi
 fi
 
+# Headless Chromium: the browser check of report.html (tests/test_report.py skips
+# without it). REROOM_SETUP_BROWSER=0 leaves it out (scripts/run.sh: the main job needs
+# no browser). The install is ~50 s and ~100 packages on a fresh Debian 12.
+have_chromium() {
+  command -v chromium >/dev/null || command -v chromium-browser >/dev/null \
+    || command -v google-chrome >/dev/null || [ -n "${REROOM_CHROMIUM:-}" ]
+}
+if [ "${REROOM_SETUP_BROWSER:-1}" != "0" ] && ! have_chromium; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "setup: installing chromium (headless browser check of report.html, about a minute)" >&2
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >&2 \
+      || echo "setup: WARNING: could not install chromium; the report's browser test will be skipped" >&2
+  else
+    echo "setup: note: no chromium and not root: the report's browser test will be skipped" >&2
+  fi
+fi
+
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv" >&2
   "$PY" -m venv .venv

@@ -171,3 +171,43 @@ def test_flat_vertices():
     normals = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 1.0, 0], [0, 0, 1.0], [0, 0, 0]])
     edges = np.array([[0, 1], [1, 2], [3, 4]])
     assert flat_vertices(edges, normals).tolist() == [True, False, False, False, False]
+
+
+def _noisy_bracket(radiance: float, seed: int, sigma: float = 0.25):
+    """Samples of one vertex through 12 exposures with heavy multiplicative noise."""
+    rng = np.random.default_rng(seed)
+    scales = np.geomspace(0.2, 6.0, 12)
+    vi, fj, levels = [], [], []
+    for v in range(200):
+        x = radiance * scales * rng.lognormal(-0.5 * sigma**2, sigma, len(scales))
+        lv = np.clip(np.round(x * 255), 0, 255).astype(np.uint8)
+        vi.append(np.full(len(scales), v))
+        fj.append(np.arange(len(scales)))
+        levels.append(np.repeat(lv[:, None], 3, axis=1))
+    obs = Observations.from_arrays(
+        200, len(scales), np.concatenate(vi), np.concatenate(fj), np.concatenate(levels)
+    )
+    return obs, np.repeat(scales[:, None], 3, axis=1)
+
+
+@pytest.mark.parametrize("radiance", [0.03, 0.12])
+def test_predicted_weights_remove_the_noise_selection_bias(radiance):
+    # With the sample's own level in the hat weight, noise decides which samples
+    # count: a vertex that saturates in the long exposures keeps the ones pulled
+    # down by noise. Weights from the predicted level (and censored clips) do not.
+    obs, scales = _noisy_bracket(radiance, seed=3)
+    own = reproject_radiance(obs, scales).radiance[:, 1]
+    predicted = reproject_radiance(obs, scales, level_linear=LINEAR).radiance[:, 1]
+    # The lognormal noise has mean 1 and median exp(-sigma^2 / 2): the unbiased
+    # weighted median of the samples sits at the latter.
+    target = radiance * np.exp(-0.5 * 0.25**2)
+    err_own = abs(np.median(own) / target - 1)
+    err_pred = abs(np.median(predicted) / target - 1)
+    assert err_pred < 0.02
+    assert err_pred < err_own
+
+
+def test_predicted_weights_reject_a_bad_lut():
+    obs, scales = _noisy_bracket(0.1, seed=0)
+    with pytest.raises(ValueError, match="256 non-decreasing"):
+        reproject_radiance(obs, scales, level_linear=LINEAR[::-1])

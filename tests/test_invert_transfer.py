@@ -592,3 +592,32 @@ def test_voxel_receivers_and_spread_transfer():
     flat = np.abs(normals).max(axis=1) > 0.99
     rel = np.abs(spread.indirect[flat, 0] / full.indirect[flat, 0] - 1)
     assert np.median(rel) < 0.05 and rel.max() < 0.3
+
+
+def test_inset_points_move_border_vertices_inwards_only():
+    from reroom.invert.transfer import inset_points
+
+    # A 5x5-vertex grid on z = 0 (edge 0.25 m): interior vertices stay, border ones move
+    # into the grid, by at most inset x their mean edge length.
+    xs = np.linspace(0.0, 1.0, 5)
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    verts = np.c_[gx.ravel(), gy.ravel(), np.zeros(25)]
+    faces = []
+    for i in range(4):
+        for j in range(4):
+            a, b, c, d = i * 5 + j, (i + 1) * 5 + j, (i + 1) * 5 + j + 1, i * 5 + j + 1
+            faces += [[a, b, c], [a, c, d]]
+    mesh = trimesh.Trimesh(verts, np.array(faces), process=False)
+    idx = np.arange(25)
+    normals = np.tile([0.0, 0.0, 1.0], (25, 1))
+    moved = inset_points(mesh, idx, normals, inset=0.25)
+    shift = moved - verts
+    border = (gx.ravel() == 0) | (gx.ravel() == 1) | (gy.ravel() == 0) | (gy.ravel() == 1)
+    assert np.allclose(shift[:, 2], 0.0)
+    np.testing.assert_allclose(shift[~border], 0.0, atol=1e-12)
+    assert np.all(np.linalg.norm(shift[border], axis=1) > 0.01)
+    assert np.all(np.linalg.norm(shift, axis=1) <= 0.25 * 0.25 * np.sqrt(2) + 1e-12)
+    # border points move into the square, never out of it
+    assert np.all((moved[:, :2] >= -1e-12) & (moved[:, :2] <= 1 + 1e-12))
+    assert np.all(moved[border & (gx.ravel() == 0), 0] > 0)
+    np.testing.assert_allclose(inset_points(mesh, idx, normals, inset=0.0), verts)

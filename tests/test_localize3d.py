@@ -146,6 +146,23 @@ def test_refinement_finds_two_and_three_lights(lights, intensities):
     assert np.allclose(res.intensities[order], intensities, rtol=1e-3)
 
 
+def test_refinement_finds_two_lights_on_a_coarse_box():
+    # The fast companion of the slow test above: 864 sites, 32^3 voxels (about 10 s).
+    lights = np.array([[0.3, 0.35, 0.6], [0.7, 0.65, 0.3]])
+    meas = _box_scene(lights, [2.0, 3.5], per_side=12)
+    prop = FieldProposer3D(meas.points, meas.normals, UNIT, box_valid_mask(UNIT, 1.0, 0.04), 0.866)
+    res = localize_lights(
+        meas,
+        prop,
+        box_light_bounds(1.0),
+        1e-8 * float(np.mean(meas.values**2)),
+        RefineParams(match_distance=0.087, max_iterations=50),
+    )
+    assert res.success and len(res.positions) == 2, res.reason
+    dist = np.linalg.norm(res.positions[:, None] - lights[None], axis=-1)
+    assert np.all(dist.min(axis=0) < 1e-3)
+
+
 def test_localize_scan_names_the_missing_stage(tmp_path):
     from reroom.errors import ReroomError
     from reroom.localize.scan import localize_scan
@@ -156,15 +173,31 @@ def test_localize_scan_names_the_missing_stage(tmp_path):
 
 def test_localized_lights_are_written_in_the_light_schema(tmp_path):
     from reroom.lights.lightset import load_lights
-    from reroom.localize import LocalizeResult
-    from reroom.localize.scan import write_localized_lights
+    from reroom.localize.scan import LOCALIZED_REASON, ScanLocalizeResult, write_localized_lights
 
-    res = LocalizeResult(
-        True, np.array([[1.0, 2.0, 2.5]]), np.array([3.0]), 0.0, 1, 1, "converged", 0.1
+    res = ScanLocalizeResult(
+        np.array([[1.0, 2.0, 2.5]]), np.array([3.0]), {"wall": 0.6}, {}, 0.1, 0.1
     )
-    path = write_localized_lights(res, {"success": True}, tmp_path)
+    path = write_localized_lights(res, {"albedo": {"wall": 0.6}}, tmp_path)
     lights = load_lights(path)
     (light,) = lights.lights
     assert light.type == "point" and light.source == "localize"
+    assert light.reason == LOCALIZED_REASON
     assert light.geometry["position"] == [1.0, 2.0, 2.5]
-    assert light.geometry["intensity"] == 3.0
+    assert light.evidence["intensity"] == 3.0
+    assert (tmp_path / "localize.json").is_file()
+
+
+def test_plot_fields_3d_draws_one_row_per_light(tmp_path):
+    from PIL import Image
+
+    from reroom.localize import plot_fields_3d
+
+    lights = np.array([[0.3, 0.35, 0.6], [0.7, 0.65, 0.3]])
+    meas = _box_scene(lights, [2.0, 3.5], per_side=8)
+    grid = VoxelGrid.for_box([0, 0, 0], [1, 1, 1], 1 / 16)
+    prop = FieldProposer3D(meas.points, meas.normals, grid, box_valid_mask(grid, 1.0, 0.04), 0.866)
+    path = plot_fields_3d(prop, meas.values, tmp_path / "f.png", lights, lights + 0.01)
+    with Image.open(path) as im:
+        w, h = im.size
+    assert h > 1.5 * w / 3  # two rows of three panels

@@ -345,25 +345,41 @@ def lights(
 @app.command()
 def localize(
     scan: Annotated[
-        Path, typer.Argument(help="Scan folder (after `reroom hdr` and `reroom layout`).")
+        Path,
+        typer.Argument(help="Scan folder (after `reroom hdr`, `reroom layout`, `reroom lights`)."),
     ],
     out: Annotated[
         Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/localize).")
     ] = None,
     time_limit: Annotated[float, typer.Option(help="Seconds for the search.")] = 900.0,
+    into_lights: Annotated[
+        bool,
+        typer.Option(
+            help="Also merge the lights into SCAN/lights/lights.json (for `reroom invert`)."
+        ),
+    ] = False,
 ) -> None:
-    """Point lights from the light on the walls: positions and intensities (thesis ch. 6)."""
-    from reroom.localize.scan import ScanLocalizeOptions, localize_scan, write_localized_lights
+    """Point lights from the direct light on walls and ceiling (thesis ch. 6)."""
+    from reroom.localize.scan import (
+        ScanLocalizeOptions,
+        localize_into_lights,
+        localize_scan,
+        write_localized_lights,
+    )
 
     out = out or scan / "localize"
     with _errors():
         res, info = localize_scan(scan, ScanLocalizeOptions(time_limit=time_limit))
         path = write_localized_lights(res, info, out)
-    if not res.success:
-        console.print(f"[yellow]note:[/] did not converge ({res.reason}); wrote the last lights")
+        merged = localize_into_lights(scan, res, info) if into_lights else None
     for p, i in zip(res.positions, res.intensities, strict=True):
-        console.print(f"point light at {p.round(3).tolist()} m, intensity {i:.3g} (x albedo)")
+        console.print(f"point light at {p.round(3).tolist()} m, intensity {i:.3g}")
+    console.print(f"albedo {info['albedo']}; stopped: {info['stopped']}")
     console.print(f"[green]wrote[/] {path}")
+    if merged is not None:
+        for line in merged[1]:
+            console.print(f"  {line}")
+        console.print(f"[green]updated[/] {merged[0]}")
 
 
 @app.command()
@@ -417,33 +433,258 @@ def invert(
 
 
 @app.command()
+def edit(
+    scan: Annotated[Path, typer.Argument(help="Scan folder (with invert/, lights/, layout/).")],
+    edits: Annotated[
+        Path | None, typer.Argument(help="Edit file (reroom-edits JSON); or use --op / --set.")
+    ] = None,
+    op: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--op",
+            help="Edit shortcut, repeatable, applied after the file's: empty, "
+            "repaint:TARGET=r,g,b|FILE, off:NAME, scale:NAME=s, color:NAME=r,g,b, "
+            "move:NAME=x,y,z, window:NAME=HDRI, insert:OBJECT@x,y,z[@deg], add:NAME@x,y,z=I.",
+        ),
+    ] = None,
+    edit_set: Annotated[
+        str | None,
+        typer.Option("--set", help="A default edit set (empty, repaint_walls, ...) or 'all'."),
+    ] = None,
+    frames: Annotated[
+        str | None, typer.Option(help="Input frames to render from, e.g. 0,5 (default: 4).")
+    ] = None,
+    camera: Annotated[
+        Path | None,
+        typer.Option(help="JSON list of new cameras (transform_matrix, fl_x, ..., name)."),
+    ] = None,
+    spp: Annotated[int, typer.Option(help="Samples per pixel.")] = 64,
+    scale: Annotated[
+        float, typer.Option("--scale", help="Resize the rendered views (e.g. 0.5).")
+    ] = 1.0,
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default SCAN/edits/NAME).")
+    ] = None,
+    name: Annotated[
+        str | None, typer.Option(help="Name of the renders (default: the edit file's stem).")
+    ] = None,
+    composite: Annotated[
+        bool, typer.Option(help="Composite inserted objects into the frames' photos.")
+    ] = False,
+    bake: Annotated[bool, typer.Option(help="Bake the edited model's GI to PLY + glb.")] = False,
+    list_sets: Annotated[bool, typer.Option("--list", help="Print the default sets.")] = False,
+) -> None:
+    """Edit the recovered room (empty, repaint, relight, insert) and render it (thesis §5.7, §7.3)."""
+    import json
+
+    from reroom.edit import (
+        bake_edit,
+        composite_insertion,
+        default_edit_sets,
+        load_edits,
+        parse_edits,
+        render_edit,
+    )
+    from reroom.edit.edits import EditError, op_from_shortcut
+
+    with _errors():
+        named: dict[str, list] = {}
+        if list_sets or edit_set is not None:
+            defaults = default_edit_sets(scan)
+            if list_sets:
+                print(json.dumps(defaults, indent=2))
+                if edit_set is None and edits is None and not op:
+                    return
+            if edit_set == "all":
+                named.update(defaults)
+            elif edit_set is not None:
+                if edit_set not in defaults:
+                    raise EditError(f"no default edit set {edit_set!r}; there are {list(defaults)}")
+                named[edit_set] = defaults[edit_set]
+        ops: list = load_edits(edits) if edits is not None else []
+        ops += parse_edits([op_from_shortcut(s) for s in op or []], "--op")
+        if edits is not None or op:
+            named[name or (edits.stem if edits is not None else "edit")] = ops
+        if not named:
+            raise EditError("give an edit file, --op shortcuts or --set (see reroom edit --help)")
+        frame_list = [int(x) for x in frames.split(",")] if frames else None
+        cams = None
+        if camera is not None:
+            try:
+                cams = json.loads(camera.read_text())
+            except (OSError, ValueError) as exc:
+                raise EditError(f"{camera}: camera file does not load ({exc})") from exc
+            cams = cams.get("frames", cams) if isinstance(cams, dict) else cams
+        for set_name, set_ops in named.items():
+            dest = out if out is not None and len(named) == 1 else None
+            dest = dest or (out / set_name if out is not None else scan / "edits" / set_name)
+            with _progress() as cb:
+                doc = render_edit(
+                    scan,
+                    set_ops,
+                    dest,
+                    frames=frame_list,
+                    cameras=cams,
+                    spp=spp,
+                    name=set_name,
+                    resolution_scale=scale,
+                    progress=cb,
+                )
+            console.print(f"[green]{set_name}[/]: {len(doc['views'])} views in {dest}")
+            if composite:
+                if not any(o["op"] == "insert" for o in set_ops):
+                    console.print(f"[yellow]note:[/] {set_name}: no inserted object to composite")
+                else:
+                    for j in frame_list or [
+                        v["frame"] for v in doc["views"] if v["frame"] is not None
+                    ]:
+                        c = composite_insertion(
+                            scan, set_ops, j, dest, spp=spp, name=f"{set_name}_composite"
+                        )
+                        console.print(f"  composite of frame {j}: {c['png']}")
+            if bake:
+                b = bake_edit(scan, set_ops, dest, spp=spp, name=f"{set_name}_baked")
+                console.print(f"  baked {b['vertices']} vertices: {', '.join(b['files'].values())}")
+
+
+@app.command("run")
+def run_command(
+    scan: Annotated[Path, typer.Argument(help="Scan folder.")],
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out", "-o", help="Run folder (default: the scan folder; else links to the scan)."
+        ),
+    ] = None,
+    edits: Annotated[
+        Path | None,
+        typer.Option(help="An edit file (reroom-edits JSON) rendered as one more edit set."),
+    ] = None,
+    force: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Run this stage even if unchanged (repeatable; hdr, layout, lights, invert, "
+            "rerender, edits, report, or all)."
+        ),
+    ] = None,
+    frames_to_render: Annotated[
+        int, typer.Option(help="Input frames the re-renders and edit renders are made from.")
+    ] = 2,
+    spp: Annotated[int, typer.Option(help="Samples per pixel of the renders.")] = 16,
+    default_edits: Annotated[
+        bool, typer.Option(help="Render the default edit sets (empty, repaint, relight, ...).")
+    ] = True,
+    evaluate: Annotated[
+        bool, typer.Option(help="Ground-truth errors in the report (scans with ground_truth/).")
+    ] = True,
+    localize: Annotated[
+        bool,
+        typer.Option(
+            help="Also localize point lights from the lit walls (thesis ch. 6) and hand them "
+            "to the inverse rendering (adds 30-80 s; see docs/localize.md)."
+        ),
+    ] = False,
+) -> None:
+    """Every stage end to end (HDR, layout, lights, invert, renders, edits) and report.html.
+
+    Resumable: a stage whose inputs and options did not change is skipped.
+    """
+    from reroom.run import STAGES, RunOptions, run_scan
+
+    opts = RunOptions(
+        out_dir=out,
+        edits_file=edits,
+        frames_to_render=frames_to_render,
+        spp=spp,
+        default_edits=default_edits,
+        evaluate=evaluate,
+        localize=localize,
+    )
+    t = time.perf_counter()
+    with _errors(), _progress() as cb:
+        res = run_scan(scan, opts, force=force or [], progress=cb)
+    table = Table(title=f"reroom run {scan} ({time.perf_counter() - t:.1f} s)")
+    for col in ("stage", "status", "seconds", "why"):
+        table.add_column(col)
+    done = {r.name: r for r in res.results}
+    for name in STAGES:
+        r = done.get(name)
+        if r is None:
+            table.add_row(name, "not reached", "", "")
+            continue
+        color = {"ran": "green", "skipped": "dim", "failed": "red"}[r.status]
+        table.add_row(name, f"[{color}]{r.status}[/]", f"{r.seconds:.1f}", r.reason)
+    console.print(table)
+    for note in res.notes:
+        console.print(f"[yellow]note:[/] {note}")
+    if res.report is not None:
+        console.print(f"[green]wrote[/] {res.report}")
+    if res.failed is not None:
+        console.print(
+            f"[bold red]error:[/] stage {res.failed.name} failed: {res.failed.reason} "
+            "(the stages before it kept their results; run again to resume)"
+        )
+        raise typer.Exit(1)
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the demo's outputs.")] = Path(
         "out/demo"
     ),
     frames: Annotated[int, typer.Option(help="Number of frames.")] = 24,
+    spp: Annotated[int, typer.Option(help="Samples per pixel of the renders.")] = 16,
 ) -> None:
-    """The main job on the embedded default: generate the `furnished` room and its contact sheet."""
-    synth(
-        preset="furnished",
-        out=out / "scan",
-        frames=frames,
-        width=160,
-        height=120,
-        fov=60.0,
-        spp=16,
-        vertex_spp=256,
-        seed=0,
-        hdri="courtyard",
-        lights=None,
-        mesh="clean",
-        noise=True,
-        response="gamma2.2",
-        save_hdr=False,
-        sheet=False,
+    """The main job on the embedded default: the `furnished` room, then `reroom run` on it.
+
+    Writes the synthetic scan to OUT/scan (kept between runs: regenerated only when its
+    frame count differs), every stage's outputs and OUT/report.html to OUT, and, where a
+    Chromium browser exists, OUT/report.png (the report's top in headless Chromium).
+    """
+    import json
+
+    scan_dir = out / "scan"
+    existing = None
+    with contextlib.suppress(OSError, ValueError):
+        existing = len(json.loads((scan_dir / "transforms.json").read_text())["frames"])
+    if existing == frames:
+        console.print(f"reusing the scan in {scan_dir} ({frames} frames)")
+    else:
+        synth(
+            preset="furnished",
+            out=scan_dir,
+            frames=frames,
+            width=160,
+            height=120,
+            fov=60.0,
+            spp=16,
+            vertex_spp=256,
+            seed=0,
+            hdri="courtyard",
+            lights=None,
+            mesh="clean",
+            noise=True,
+            response="gamma2.2",
+            save_hdr=False,
+            sheet=True,
+            overwrite=existing is not None,
+        )
+    run_command(
+        scan=scan_dir,
+        out=out,
+        edits=None,
+        force=None,
+        frames_to_render=2,
+        spp=spp,
+        default_edits=True,
+        evaluate=True,
     )
-    with _errors():
-        _write_sheet(out / "scan", out / "contact_sheet.png")
+    from reroom.report import find_chromium, screenshot
+
+    if find_chromium() is not None:
+        with _errors():
+            shot = screenshot(out / "report.html", out / "report.png", width=1280, height=2400)
+        console.print(f"[green]wrote[/] {shot} (the report in headless Chromium)")
 
 
 def main() -> None:  # pragma: no cover - entry point

@@ -28,7 +28,7 @@ from typing import Any
 from reroom import __version__
 from reroom.io.atomic import atomic_write_json
 
-__all__ = ["Stage", "StageResult", "fingerprint", "run_stages", "RECORD_NAME"]
+__all__ = ["Stage", "StageResult", "fingerprint", "read_record", "run_stages", "RECORD_NAME"]
 
 #: Name of the record a finished stage leaves in its output folder.
 RECORD_NAME = ".reroom_stage.json"
@@ -47,7 +47,9 @@ class Stage:
         Folder the stage writes (its record goes there too).
     inputs:
         Files whose content the result depends on (missing ones are hashed as
-        missing, so their appearance triggers a re-run).
+        missing, so their appearance triggers a re-run); or a function returning them,
+        called just before the stage would run (for inputs such as "every file an
+        upstream stage wrote", known only once it ran).
     options:
         JSON-able options that shape the result.
     outputs:
@@ -58,7 +60,7 @@ class Stage:
 
     name: str
     out_dir: Path
-    inputs: Sequence[Path]
+    inputs: Sequence[Path] | Callable[[], Sequence[Path]]
     options: dict[str, Any]
     outputs: Sequence[Path]
     run: Callable[[Callable[[str, int, int], None]], Any]
@@ -76,8 +78,11 @@ class StageResult:
     error: BaseException | None = field(default=None, repr=False)
 
 
-def _hash_file(h: Any, path: Path) -> None:
-    h.update(str(path).encode())
+def _hash_file(h: Any, path: Path, root: Path | None = None) -> None:
+    name = path
+    if root is not None and path.is_relative_to(root):
+        name = path.relative_to(root)
+    h.update(str(name).encode())
     if not path.exists():
         h.update(b"<missing>")
         return
@@ -93,22 +98,39 @@ def _hash_file(h: Any, path: Path) -> None:
             h.update(chunk)
 
 
-def fingerprint(name: str, inputs: Iterable[Path], options: dict[str, Any]) -> str:
-    """SHA-256 of the reroom version, the stage name, its options and its input files."""
+def fingerprint(
+    name: str, inputs: Iterable[Path], options: dict[str, Any], root: str | Path | None = None
+) -> str:
+    """SHA-256 of the reroom version, the stage name, its options and its input files.
+
+    Input files under ``root`` are named by their path relative to it, so a run folder
+    that is moved or copied whole keeps its fingerprints (its stages are not re-run).
+    """
     h = hashlib.sha256()
     h.update(f"reroom {__version__}\nstage {name}\n".encode())
     h.update(json.dumps(options, sort_keys=True, default=str).encode())
+    base = Path(root) if root is not None else None
     for p in sorted(Path(x) for x in inputs):
-        _hash_file(h, p)
+        _hash_file(h, p, base)
     return h.hexdigest()
 
 
-def _record(stage: Stage) -> dict[str, Any] | None:
-    path = Path(stage.out_dir) / RECORD_NAME
+def read_record(out_dir: str | Path) -> dict[str, Any] | None:
+    """The record a finished stage left in ``out_dir`` (``None``: none, or unreadable).
+
+    Keys: ``stage``, ``fingerprint``, ``reroom`` (version), ``seconds``, ``finished``
+    (local time), ``options``.
+    """
+    path = Path(out_dir) / RECORD_NAME
     try:
-        return json.loads(path.read_text())
+        doc = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _record(stage: Stage) -> dict[str, Any] | None:
+    return read_record(stage.out_dir)
 
 
 def run_stages(
@@ -116,6 +138,7 @@ def run_stages(
     force: Iterable[str] = (),
     progress: Callable[[str, int, int], None] | None = None,
     stop_on_error: bool = True,
+    root: str | Path | None = None,
 ) -> list[StageResult]:
     """Run stages in order, skipping those whose fingerprint and outputs are unchanged.
 
@@ -132,6 +155,9 @@ def run_stages(
         Stop at the first failing stage (the default: later stages would read stale
         or missing inputs). The failed stage keeps no record; earlier stages' results
         stay valid and are reused by the next run.
+    root:
+        The run's folder: inputs under it are fingerprinted by their relative path
+        (see :func:`fingerprint`).
 
     Returns
     -------
@@ -142,7 +168,8 @@ def run_stages(
     report = progress or (lambda stage, done, total: None)
     results: list[StageResult] = []
     for stage in stages:
-        fp = fingerprint(stage.name, stage.inputs, stage.options)
+        inputs = stage.inputs() if callable(stage.inputs) else stage.inputs
+        fp = fingerprint(stage.name, inputs, stage.options, root)
         rec = _record(stage)
         missing = [str(p) for p in stage.outputs if not Path(p).exists()]
         if stage.name in force or "all" in force:
@@ -157,6 +184,9 @@ def run_stages(
             results.append(StageResult(stage.name, "skipped", 0.0, "unchanged", fp))
             report(stage.name, 1, 1)
             continue
+        # The old record goes before the stage starts: if the stage then fails, the
+        # outputs it leaves must not pass for a finished run of the old inputs.
+        (Path(stage.out_dir) / RECORD_NAME).unlink(missing_ok=True)
         t = time.perf_counter()
         try:
             stage.run(report)

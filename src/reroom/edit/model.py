@@ -18,6 +18,9 @@ renders it.
 * **Point lights**: ``reroom_goniometric`` with the solved inclination profile about the
   light's axis (``interpolation`` between bin centres, or constant per bin as solved).
 * **Line lights**: ``reroom_line`` with the solved profile around the line.
+* **Glowing fittings**: faces of vertices ``albedo.ply`` flags as ``light`` that are not
+  an area light's (a tube's own surface) are left out: their light is in the solved
+  distribution, and their mesh would enclose the emitter.
 """
 
 from __future__ import annotations
@@ -192,11 +195,26 @@ def model_scene(
             )
         else:
             raise ReroomError(f"{scene_path}: light {name!r} has an unknown type {kind!r}")
+        # Next-event estimation picks one emitter per sample: by solved power rather than
+        # uniformly, so weak lights (a dim downlight) do not take the strong ones' samples.
+        power = light.get("power")
+        if power is not None and np.all(np.isfinite(power)) and np.mean(power) > 0:
+            entry = scene[f"light_{k:02d}"]
+            target = entry["emitter"] if "emitter" in entry else entry
+            target["sampling_weight"] = float(np.mean(power))
         n_lights += 1
     if n_lights == 0:
         raise ReroomError(f"{scene_path}: the model has no light to render")
 
     keep = ~emitting
+    if "light" in attrs:
+        # Vertices ``reroom invert`` joined to a light's emitter class (a tube's glowing
+        # surface, a bulb within 5 cm of a point light): their light is part of the
+        # solved distribution, and their mesh would enclose the line or point emitter
+        # and block it (the transfer ignores geometry that close to a light), so they
+        # are not rendered as surfaces.
+        glow = np.asarray(attrs["light"]).astype(bool)
+        keep &= ~(glow[faces].sum(axis=1) >= 2)
     room = write_ply(
         work / "room.ply",
         trimesh.Trimesh(vertices, faces[keep], process=False),

@@ -55,7 +55,7 @@ def rerender_inputs(
         Per frame: ``index``, ``ratio_of_means``, ``relative_l1``, ``pixels``; and the
         medians.
     """
-    from reroom.edit.model import model_scene
+    from reroom.edit.apply import edited_scene
     from reroom.hdr.linearize import response_lut
     from reroom.render.frames import FrameRenderer
     from reroom.scan import load_scan
@@ -72,7 +72,10 @@ def rerender_inputs(
     except ValueError as exc:
         raise ScanError(exp_path, f"is not valid JSON ({exc})") from exc
     lut = response_lut(exposures.get("response", "auto"), scan.meta)
-    scene = model_scene(scan_dir, inv, lights_dir, work_dir=out / "model_meshes")
+    # The unedited model exactly as the edits render it (fittings, glowing surfaces).
+    scene = edited_scene(
+        scan_dir, [], invert_dir=inv, lights_dir=lights_dir, work_dir=out / "model_meshes"
+    )
     usable = [
         j
         for j, f in enumerate(exposures["frames"])

@@ -75,6 +75,11 @@ class HdrOptions:
         Write the report pictures (exposure curves, before/after renders).
     render_size:
         ``(width, height)`` of each render in the report.
+    predicted_weights:
+        Weight each sample of the radiance median by the hat confidence of the level
+        the vertex's first-pass radiance predicts in its frame, clipped samples
+        censored (:func:`~reroom.hdr.reproject.reproject_radiance`); False: the
+        thesis's weights from the sample's own level.
     """
 
     response: ResponseSpec = "auto"
@@ -83,6 +88,7 @@ class HdrOptions:
     baselines: bool = True
     report: bool = True
     render_size: tuple[int, int] = (480, 360)
+    predicted_weights: bool = True
 
 
 @dataclass
@@ -216,7 +222,9 @@ def run_hdr(
 
     t = time.perf_counter()
     groups = VertexGroups(obs)
-    rad = reproject_radiance(obs, sol.scales, groups)
+    rad = reproject_radiance(
+        obs, sol.scales, groups, level_linear=lut if opt.predicted_weights else None
+    )
     best = best_frame_texture(obs, groups)
     timings["radiance"] = time.perf_counter() - t
     n_unobs = int(np.count_nonzero(~rad.observed))

@@ -85,6 +85,7 @@ def reproject_radiance(
     obs: Observations,
     scales: np.ndarray,
     groups: VertexGroups | None = None,
+    level_linear: np.ndarray | None = None,
 ) -> Radiance:
     """Weighted-median radiance of every vertex (eq. 3.2-3.4) given frame ``scales``.
 
@@ -98,6 +99,15 @@ def reproject_radiance(
     groups:
         Precomputed :class:`VertexGroups` of ``obs`` (saves a sort when called
         for several sets of scales).
+    level_linear:
+        ``(256,)`` linear value of each 8-bit level (the response LUT the samples
+        were linearised with). When given, a second pass re-weights every sample by
+        the hat confidence of the level the first pass's radiance *predicts* in its
+        frame, and counts clipped samples as censored (+inf). The thesis's weights
+        come from each sample's own level: with noisy pixels, that lets the noise
+        pick the samples (a bright vertex keeps the frames where noise pulled it
+        down from saturation, a dark one those where noise lifted it), which
+        compresses the dynamic range -- measured in ``docs/hdr.md``.
     """
     groups = groups or VertexGroups(obs)
     s = np.asarray(scales, np.float64)
@@ -120,6 +130,25 @@ def reproject_radiance(
         out,
         count,
     )
+    if level_linear is not None:
+        lut = np.asarray(level_linear, np.float64)
+        if lut.shape != (256,) or np.any(np.diff(lut) < 0):
+            raise ValueError("level_linear must be 256 non-decreasing linear values")
+        K.reproject_medians_predicted(
+            groups.offsets,
+            groups.order,
+            obs.frame,
+            obs.value,
+            obs.linear,
+            obs.geometry,
+            obs.flags,
+            decode_linear(np.arange(65536)),
+            _confidence_lut(),
+            inv,
+            out.copy(),
+            lut,
+            out,
+        )
     return Radiance(out, count > 0, count)
 
 

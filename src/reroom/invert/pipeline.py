@@ -36,7 +36,7 @@ from reroom.invert.solve import (
     solve_lighting,
 )
 from reroom.invert.subsample import spread_transfer, voxel_receivers
-from reroom.invert.transfer import hemisphere_transfer
+from reroom.invert.transfer import hemisphere_transfer, inset_points
 from reroom.invert.windows import WindowOpening
 from reroom.io.mesh import read_ply
 from reroom.rays import RayCaster
@@ -85,6 +85,7 @@ class InvertOptions:
     line_segments: int = 16
     area_samples: int = DEFAULT_AREA_SAMPLES
     fixture_margin: float = 0.05
+    receiver_inset: float = 0.0
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
     pictures: bool = True
@@ -189,8 +190,8 @@ def run_invert(
     progress : callable, optional
         ``progress(stage, done, total)``.
     radiance_override : ndarray, shape (V, 3), optional
-        Radiance to use instead of the HDR mesh's, every vertex counted as observed
-        (for :func:`reroom.invert.evaluate.run_invert_true_radiance` only).
+        Radiance to use instead of the HDR mesh's, every finite row counted as
+        observed (NaN rows: unobserved) (for :func:`reroom.invert.evaluate.run_invert_true_radiance` only).
 
     Returns
     -------
@@ -221,7 +222,8 @@ def run_invert(
     nv = len(mesh.vertices)
     if radiance_override is not None:
         radiance = np.asarray(radiance_override, dtype=np.float64).reshape(nv, 3)
-        observed = np.ones(nv, dtype=bool)
+        observed = np.isfinite(radiance).all(axis=1)
+        radiance = np.where(observed[:, None], radiance, 0.0)
         notes.append("EVALUATION ONLY: solved with the ground truth's radiance")
     labels_mesh = read_ply(labels_path)
     if len(labels_mesh.vertices) != nv or "label" not in labels_mesh.vertex_attributes:
@@ -291,6 +293,7 @@ def run_invert(
         seed=options.seed,
         progress=None if progress is None else (lambda d, n: progress("invert transfer", d, n)),
         window_of_vertex=window_of,
+        inset=options.receiver_inset,
     )
     if len(sub) != len(receivers):
         hemi = spread_transfer(hemi, pts, normals, receivers)
@@ -302,7 +305,8 @@ def run_invert(
     info: list[dict] = []
     incl = InclinationBasis(options.bins)
     chain = np.stack([np.arange(options.bins - 1), np.arange(1, options.bins)], axis=1)
-    p_recv, n_recv = pts[receivers], normals[receivers]
+    n_recv = normals[receivers] / np.linalg.norm(normals[receivers], axis=1, keepdims=True)
+    p_recv = inset_points(mesh, receivers, n_recv, options.receiver_inset)
     for k, light in enumerate(areas):
         blocks.append(LightBlock(light.name, "area", 1))
         # Integrated over the light's surface, not counted from the hemisphere rays:

@@ -71,6 +71,7 @@ __all__ = [
     "HemisphereTransfer",
     "WindowOpening",
     "hemisphere_transfer",
+    "inset_points",
     "line_light_transfer",
     "mean_edge_lengths",
     "point_light_transfer",
@@ -140,6 +141,67 @@ def mean_edge_lengths(mesh: trimesh.Trimesh) -> np.ndarray:
     total = np.bincount(edges.ravel(), np.repeat(length, 2), minlength=nv)
     count = np.bincount(edges.ravel(), minlength=nv)
     return np.divide(total, count, out=np.zeros(nv), where=count > 0)
+
+
+def inset_points(
+    mesh: trimesh.Trimesh,
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    inset: float = 0.25,
+) -> np.ndarray:
+    """Receiving points moved a little into their own surface, away from its boundary.
+
+    A vertex on the border of a surface -- where a scanned wall meets the ceiling, or
+    the seam between two parts of a mesh -- lies *in the plane* of the neighbouring
+    surface: a ray leaving it sideways starts on that surface and is "occluded" at
+    distance 0, so its shadow rays see no light and half its hemisphere is wrongly
+    blocked. The photo of that spot shows the lit surface a hair away from the edge, so
+    the transfer is computed there instead: each point moves towards the area-weighted
+    centroid of its one-ring, in its tangent plane, by ``inset`` times its mean edge
+    length at most (and never past the centroid). Interior vertices of a regular mesh
+    have their centroid on themselves and do not move.
+
+    Parameters
+    ----------
+    mesh:
+        The scan mesh.
+    vertices:
+        ``(n,)`` vertex indices.
+    normals:
+        ``(n, 3)`` unit normals of those vertices.
+    inset:
+        Largest move, as a fraction of the vertex's mean edge length.
+
+    Returns
+    -------
+    ``(n, 3)`` points.
+    """
+    recv = np.asarray(vertices, dtype=np.int64).ravel()
+    pts = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if inset <= 0 or len(faces) == 0:
+        return pts[recv].copy()
+    tri = pts[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    centre = tri.mean(axis=1) * area[:, None]
+    nv = len(pts)
+    weight = np.bincount(faces.ravel(), np.repeat(area, 3), minlength=nv)
+    acc = np.stack(
+        [np.bincount(faces.ravel(), np.repeat(centre[:, k], 3), minlength=nv) for k in range(3)],
+        axis=1,
+    )
+    p = pts[recv]
+    w = weight[recv]
+    ring = np.divide(acc[recv], w[:, None], out=p.copy(), where=w[:, None] > 0)
+    move = ring - p
+    move -= np.sum(move * nrm, axis=1, keepdims=True) * nrm
+    length = np.linalg.norm(move, axis=1)
+    limit = inset * mean_edge_lengths(mesh)[recv]
+    scale = np.divide(
+        np.minimum(length, limit), length, out=np.zeros_like(length), where=length > 0
+    )
+    return p + move * scale[:, None]
 
 
 def _per_vertex(name: str, a: np.ndarray, nv: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -234,6 +296,7 @@ def hemisphere_transfer(
     *,
     window_of_vertex: np.ndarray | None = None,
     offset: float = 0.01,
+    inset: float = 0.0,
     window_tolerance: float = 0.02,
     batch_rays: int = BATCH_RAYS,
 ) -> HemisphereTransfer:
@@ -271,6 +334,9 @@ def hemisphere_transfer(
     offset:
         Ray origins start ``offset`` times the vertex's mean edge length along its
         normal (at least ``caster.eps``).
+    inset:
+        Ray origins also move into their own surface by up to ``inset`` times the mean
+        edge length, away from its border (:func:`inset_points`); 0: not at all.
     window_tolerance:
         Metres, see :func:`reroom.invert.windows.rays_through_windows`.
     batch_rays:
@@ -334,7 +400,8 @@ def hemisphere_transfer(
     out_dist = np.zeros((n, n_win, nb_size))
 
     edge = mean_edge_lengths(mesh)[recv]
-    starts = mesh.vertices[recv] + np.maximum(offset * edge, caster.eps)[:, None] * nrm
+    base = inset_points(mesh, recv, nrm, inset) if inset > 0 else mesh.vertices[recv]
+    starts = base + np.maximum(offset * edge, caster.eps)[:, None] * nrm
     faces = np.ascontiguousarray(mesh.faces, dtype=np.int32)
     face_normals = caster.face_normals
     rng = np.random.default_rng(seed)

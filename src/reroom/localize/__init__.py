@@ -16,7 +16,10 @@ Layout:
 * :mod:`~reroom.localize.bench2d`, :mod:`~reroom.localize.plot`: the thesis's synthetic 2D
   dataset and evaluation (Table 6.1), and pictures of the fields;
 * :mod:`~reroom.localize.fields3d`, :mod:`~reroom.localize.scene3d`: the scene transforms on
-  a voxel grid, the 3D candidate proposer, and box rooms (Table 6.2).
+  a voxel grid, the 3D candidate proposer, and box rooms (Table 6.2);
+* :mod:`~reroom.localize.scan`: room-scale localization on a scan (``reroom localize``),
+  with the indirect light gathered from the observations and the hand-off to
+  ``SCAN/lights/lights.json``.
 """
 
 from reroom.localize.bench2d import (
@@ -53,7 +56,7 @@ from reroom.localize.measurements import (
     shading_jacobian,
     shading_matrix,
 )
-from reroom.localize.plot import plot_fields
+from reroom.localize.plot import plot_fields, plot_fields_3d
 from reroom.localize.refine import (
     LocalizeResult,
     RefineParams,
@@ -123,6 +126,7 @@ __all__ = [
     "mean_squared_error",
     "medial_axis",
     "plot_fields",
+    "plot_fields_3d",
     "prune_lights",
     "random_lights",
     "random_restarts",

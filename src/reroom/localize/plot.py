@@ -1,4 +1,4 @@
-"""Pictures of the 2D scene transforms, like the thesis's Figures 6.1, 6.2 and 6.8."""
+"""Pictures of the scene transforms, like the thesis's Figures 6.1, 6.2 and 6.8 (2D and 3D slices)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from reroom.io.atomic import atomic_path
 from reroom.localize.fields import FieldProposer2D, VoteParams, medial_axis
 from reroom.localize.scene2d import Room2D, WallSamples
 
-__all__ = ["plot_fields"]
+__all__ = ["plot_fields", "plot_fields_3d"]
 
 
 def _draw_room(ax, room: Room2D) -> None:
@@ -99,6 +99,101 @@ def plot_fields(
         ax.set_ylim(ext[2], ext[3])
     if true_positions is not None or found_positions is not None:
         axes[2].legend(loc="upper right", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    out = Path(path)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png")
+    return out
+
+
+def plot_fields_3d(
+    proposer,
+    values: ArrayLike,
+    path: str | Path,
+    true_positions: ArrayLike | None = None,
+    found_positions: ArrayLike | None = None,
+    heights: ArrayLike | None = None,
+    title: str | None = None,
+) -> Path:
+    """Save a PNG of horizontal slices of the 3D ``D``, ``L`` and ``V`` (one row per height).
+
+    Parameters
+    ----------
+    proposer:
+        A :class:`~reroom.localize.scene3d.FieldProposer3D` (its grid, sites and vote).
+    values:
+        The light ``B`` at its sites.
+    path:
+        Output PNG (written atomically).
+    true_positions, found_positions:
+        Optional ``(K, 3)`` lights: red circles (truth) and green crosses (found), drawn in
+        every slice, smaller the farther they are from it.
+    heights:
+        z of the slices (default: the true lights' heights, else the grid's middle).
+    title:
+        Figure title.
+
+    Returns
+    -------
+    The path written.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    grid = proposer.grid
+    d, lim, v = proposer.fields(values)
+    xs, ys, zs = grid.axes()
+    if heights is None:
+        heights = (
+            np.asarray(true_positions, float).reshape(-1, 3)[:, 2]
+            if true_positions is not None and len(true_positions)
+            else [zs[len(zs) // 2]]
+        )
+    heights = np.atleast_1d(np.asarray(heights, float))
+    ext = [
+        xs[0] - grid.voxel / 2,
+        xs[-1] + grid.voxel / 2,
+        ys[0] - grid.voxel / 2,
+        ys[-1] + grid.voxel / 2,
+    ]
+    fig = Figure(figsize=(15, 4.8 * len(heights)), dpi=90)
+    FigureCanvasAgg(fig)
+    axes = np.atleast_2d(fig.subplots(len(heights), 3))
+    # Limiters coloured by their site's position around the scene (angle about the centre).
+    centre = proposer.points.mean(axis=0)
+    angle = np.arctan2(proposer.points[:, 1] - centre[1], proposer.points[:, 0] - centre[0])
+    hue_of = (angle / (2 * np.pi) + 0.5 + 0.37 * proposer.points[:, 2]) % 1.0
+    for row, z in zip(axes, heights, strict=True):
+        k = int(np.clip(np.rint((z - zs[0]) / grid.voxel), 0, len(zs) - 1))
+        dk, lk, vk = d[:, :, k].T, lim[:, :, k].T, v[:, :, k].T
+        finite = np.isfinite(dk) & (dk > 0)
+        logd = np.full(dk.shape, np.nan)
+        logd[finite] = np.log10(dk[finite])
+        im = row[0].imshow(logd, origin="lower", extent=ext, cmap="magma")
+        fig.colorbar(im, ax=row[0], fraction=0.046, pad=0.04, label="log10 D(p)")
+        hue = np.full(lk.shape, np.nan)
+        hue[lk >= 0] = hue_of[lk[lk >= 0]]
+        row[1].imshow(hue, origin="lower", extent=ext, cmap="hsv", interpolation="nearest")
+        im = row[2].imshow(vk, origin="lower", extent=ext, cmap="viridis")
+        fig.colorbar(im, ax=row[2], fraction=0.046, pad=0.04, label="V(p)")
+        row[0].set_title(f"D(p), z = {zs[k]:.2f}")
+        row[1].set_title(f"L(p) (limiter site), z = {zs[k]:.2f}")
+        row[2].set_title(f"V(p) (distinct limiters, r = {proposer.params.radius}), z = {zs[k]:.2f}")
+        for ax in row:
+            for pts, style in ((true_positions, "true"), (found_positions, "found")):
+                if pts is None or not len(pts):
+                    continue
+                p = np.asarray(pts, float).reshape(-1, 3)
+                size = 120.0 / (1.0 + (np.abs(p[:, 2] - zs[k]) / (4 * grid.voxel)) ** 2)
+                if style == "true":
+                    ax.scatter(p[:, 0], p[:, 1], s=size, facecolors="none", edgecolors="red", lw=2)
+                else:
+                    ax.scatter(p[:, 0], p[:, 1], s=0.7 * size, marker="x", color="lime", lw=2)
+            ax.set_xlim(ext[0], ext[1])
+            ax.set_ylim(ext[2], ext[3])
+            ax.set_aspect("equal")
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -1,34 +1,70 @@
-"""Room-scale light localization on a scan (``reroom localize SCAN``), thesis §6.6.3.
+"""Room-scale light localization on a scan (``reroom localize SCAN``), thesis §6.3.1, §6.6.3.
 
-Inputs: ``SCAN/hdr/hdr_mesh.ply`` (per-vertex HDR radiance, from ``reroom hdr``) and
-``SCAN/layout/layout_labels.ply`` (per-vertex labels, from ``reroom layout``). The
-measurements are the observed wall vertices (label 0): diffuse, one shared but unknown
-albedo ``rho``, so ``B = pi * radiance`` is ``rho`` times the albedo-free light and the
-limiter field does not depend on ``rho``; intensities come out multiplied by ``rho``.
-Indirect light is handled crudely, as a constant ambient level (§6.6.3 fits one in the
-solve): the 2nd percentile of ``B`` over the walls is subtracted before localization.
-The fields ignore occlusion; the solves use ray-cast visibility against the scan mesh.
-Ground truth is never read here.
+Inputs: ``SCAN/hdr/hdr_mesh.ply`` (per-vertex HDR radiance), ``SCAN/layout/layout_labels.ply``
+and ``layout.json`` (labels, room polygons) and, when present, ``SCAN/lights/lights.json``
+(area lights, windows and line lights found by ``reroom lights``). Ground truth is never read.
+
+The model of a diffuse receiver ``V`` of surface class ``c`` (wall, ceiling, floor) is
+
+    pi L_V = rho_c (E_ind(V) + A(V) x + sum_k I_k S(V, p_k))
+
+* ``E_ind`` is the irradiance gathered from the *observed* radiance of the other
+  surfaces (§6.3.1), by the hemisphere rays of
+  :func:`reroom.invert.transfer.hemisphere_transfer` (emitter surfaces excluded);
+* ``A x`` is the direct light of the other lights, with unknown non-negative strengths
+  ``x``: each area light (its observed radiance is clipped, so it is not trusted), each
+  window's cube-map cells, each line light's inclination bins, and one column for the
+  light arriving from unobserved directions (holes, a window the layout missed);
+* ``S(V, p_k)`` is eq. 6.2 with ray-cast visibility (a bulb inside a lamp shade lights only
+  what the shade's openings let through);
+* ``rho_c`` is one unknown albedo per class: first the robust minimum of
+  ``pi L / E_ind`` over the class (a vertex with no direct light has ``rho = pi L / E_ind``,
+  direct light only raises the ratio: §6.6.3's robust minimum, applied to the albedo),
+  then the median of ``pi L / (E_ind + A x + S I)`` once lights explain the direct light.
+
+``B = pi L / rho_c - E_ind`` is the direct light the thesis's transforms work on. The
+lights are found greedily (discovery on the unexplained illumination, as Algorithm 1): on a
+grid of free-space positions inside the layout's rooms, the light that would explain most
+of the remaining direct light (``(s . r)_+^2 / |s|^2`` with ray-cast visibility) joins,
+then a robust joint nonlinear solve (scipy ``least_squares``, soft-L1) refines every
+light's position and intensity and the other lights' strengths. The search stops when the
+best new light explains less than ``min_gain`` of the remaining energy or carries less than
+``min_power`` of the lights' total intensity; lights whose removal barely raises the cost
+are then dropped. Last, a goniometric test (a 32-bin inclination profile at heights along
+the vertical through each light) catches downlights, which an isotropic model puts far
+too low; the albedos are re-estimated with its lights and the test repeated. See
+docs/localize.md for what was measured, including why the voting function is not used
+here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares, nnls
 from scipy.spatial import cKDTree
 
 from reroom.errors import ReroomError
-from reroom.io.mesh import read_ply
-from reroom.localize.fields3d import VoxelGrid
-from reroom.localize.measurements import Measurements
-from reroom.localize.refine import LocalizeResult, RefineParams, localize_lights
-from reroom.localize.scene3d import FieldProposer3D, VoteParams3D
+from reroom.localize.measurements import shading_jacobian, shading_matrix
 
-__all__ = ["ScanLocalizeOptions", "localize_scan"]
+__all__ = [
+    "LOCALIZED_REASON",
+    "ScanLocalizeOptions",
+    "ScanLocalizeResult",
+    "localize_into_lights",
+    "localize_scan",
+    "merge_localized_lights",
+    "write_localized_lights",
+]
 
-WALL = 0
+WALL, FLOOR, CEILING = 0, 1, 2
+CLASS_NAMES = {WALL: "wall", FLOOR: "floor", CEILING: "ceiling"}
+LOCALIZED_REASON = "localized (thesis ch. 6)"
 
 
 @dataclass(frozen=True)
@@ -37,167 +73,780 @@ class ScanLocalizeOptions:
 
     Attributes
     ----------
+    classes:
+        Surface labels used as measurements of the search (0 wall, 1 floor, 2 ceiling).
+        The floor is left out by default: its texture breaks the one-albedo-per-class
+        model, and on ``furnished`` it made the lights worse (docs/localize.md).
+    profile_classes:
+        Surface labels used by the goniometric test (the floor holds a downlight's pool).
     max_measurements:
-        Wall vertices kept (a seeded random subset beyond this).
-    voxels:
-        Voxels along the longest side of the room's box.
+        Receivers of the search (a seeded random subset of the observed ones).
+    profile_measurements:
+        Receivers computed in all (a seeded random subset), of which those near a light
+        serve its goniometric test.
+    score_measurements:
+        Receivers used to score the grid positions (a subset, for speed).
+    rays_per_vertex:
+        Hemisphere rays per receiver for ``E_ind``.
+    albedo_percentile:
+        Percentile of ``pi L / E_ind`` per class taken as the first albedo estimate.
+    grid_step:
+        Spacing (metres) of the candidate positions.
     surface_margin:
         Candidates closer than this (metres) to a mesh vertex are dropped (§6.3.6).
-    ambient_percentile:
-        Percentile of ``B`` taken as the ambient (indirect) level and subtracted.
-    relative_rms:
-        Success when the RMS residual is below this fraction of the RMS of ``B``.
+    max_lights:
+        At most this many point lights.
+    min_gain:
+        A new light must explain at least this fraction of the unexplained energy.
     min_power:
         Lights weaker than this fraction of the total intensity are dropped.
-    negative_tolerance:
-        How far (fraction of the largest ``B``) the unexplained light may dip below zero
-        before Algorithm 1 gives up (the thesis: 0, for noiseless data).
+    prune_ratio:
+        After the search, a light whose removal (and re-solve) raises the robust cost by
+        less than this factor is dropped.
+    window_cells:
+        Cube-map cells per face side of each window's distant light.
+    line_bins:
+        Inclination bins of each line light's profile.
+    profile_bins:
+        Inclination bins of the goniometric test of each light (thesis: 32).
+    profile_radius:
+        Receivers within this horizontal distance (metres) of a light serve its test.
+    profile_step:
+        Height step (metres) of the test's search along the vertical through the light.
+    profile_gain:
+        The goniometric model replaces the isotropic one when it lowers the robust cost
+        of the light's receivers by at least this fraction.
+    albedo_rounds:
+        Rounds of (albedos from the lights, goniometric test).
+    soft_scale:
+        Scale of the soft-L1 loss, as a fraction of the median ``pi L``.
     time_limit:
-        Seconds for Algorithm 1.
+        Seconds; the search stops adding lights after this.
     seed:
-        Seed of the subset.
+        Seed of the subsets and the hemisphere rays.
     """
 
-    max_measurements: int = 4000
-    voxels: int = 64
-    surface_margin: float = 0.15
-    ambient_percentile: float = 2.0
-    relative_rms: float = 0.05
+    classes: tuple[int, ...] = (WALL, CEILING)
+    profile_classes: tuple[int, ...] = (WALL, FLOOR, CEILING)
+    max_measurements: int = 3000
+    profile_measurements: int = 20000
+    score_measurements: int = 1500
+    rays_per_vertex: int = 128
+    albedo_percentile: float = 5.0
+    grid_step: float = 0.2
+    surface_margin: float = 0.08
+    max_lights: int = 6
+    min_gain: float = 0.15
     min_power: float = 0.05
-    negative_tolerance: float = 0.1
+    prune_ratio: float = 1.1
+    window_cells: int = 4
+    line_bins: int = 4
+    profile_bins: int = 32
+    profile_radius: float = 1.5
+    profile_step: float = 0.05
+    profile_gain: float = 0.2
+    albedo_rounds: int = 2
+    soft_scale: float = 0.3
     time_limit: float = 900.0
     seed: int = 0
 
 
-def _inputs(scan: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    hdr = scan / "hdr" / "hdr_mesh.ply"
-    labels = scan / "layout" / "layout_labels.ply"
-    for path, stage in ((hdr, "hdr"), (labels, "layout")):
-        if not path.is_file():
-            raise ReroomError(f"{path}: missing (run `reroom {stage} {scan}` first)")
-    mesh = read_ply(hdr)
-    lab = read_ply(labels)
-    if len(lab.vertices) != len(mesh.vertices):
-        raise ReroomError(
-            f"{labels}: {len(lab.vertices)} vertices, but {hdr} has {len(mesh.vertices)}"
+@dataclass
+class ScanLocalizeResult:
+    """What :func:`localize_scan` found.
+
+    Attributes
+    ----------
+    positions:
+        ``(K, 3)`` point-light positions in the scan's frame (metres).
+    intensities:
+        ``(K,)`` intensities in the scan's radiance units times sr (``pi L / rho`` m^2).
+    albedo:
+        Albedo per surface class name.
+    other_lights:
+        Fitted strength of each column of the other lights (name -> value).
+    rms:
+        Robust-fit residual RMS relative to the median ``pi L``.
+    seconds:
+        Wall-clock time.
+    history:
+        One entry per discovery: the candidate, its gain, the lights after the solve.
+    goniometric:
+        Per light: None (isotropic) or the result of the goniometric test (position,
+        inclination profile, mean intensity, costs).
+    """
+
+    positions: np.ndarray
+    intensities: np.ndarray
+    albedo: dict[str, float]
+    other_lights: dict[str, float]
+    rms: float
+    seconds: float
+    history: list[dict] = field(default_factory=list)
+    goniometric: list[dict | None] = field(default_factory=list)
+
+
+def _require(path: Path, stage: str, scan: Path) -> Path:
+    if not path.is_file():
+        raise ReroomError(f"{path}: missing (run `reroom {stage} {scan}` first)")
+    return path
+
+
+@dataclass
+class _Problem:
+    """Receivers, their observations and the known parts of the model."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    pil: np.ndarray  # pi * radiance (grey)
+    e_ind: np.ndarray  # gathered indirect irradiance
+    cls: np.ndarray  # index into classes
+    classes: list[int]
+    other: np.ndarray  # (n, m) direct light of the other lights per unit strength
+    other_names: list[str]
+    caster: object
+    scale: float
+
+    def subset(self, rows: np.ndarray) -> _Problem:
+        """The same problem on some of its receivers."""
+        return _Problem(
+            self.points[rows], self.normals[rows], self.pil[rows], self.e_ind[rows],
+            self.cls[rows], self.classes, self.other[rows], self.other_names, self.caster,
+            self.scale,
+        )  # fmt: skip
+
+    def visibility(self, positions: np.ndarray) -> np.ndarray | None:
+        if len(positions) == 0:
+            return None
+        return self.caster.visibility_matrix(self.points, self.normals, positions)
+
+    def direct(self, u: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``B = pi L / rho - E_ind - A x``: the direct light left for point lights."""
+        return u[self.cls] * self.pil - self.e_ind - self.other @ x
+
+
+def _room_mask(points: np.ndarray, layout: dict, margin_floor: float = 0.1) -> np.ndarray:
+    """Points inside a room of the layout (polygon in the aligned frame, between heights)."""
+    from matplotlib.path import Path as MPath
+
+    rot = np.asarray(layout.get("rotation", np.eye(3)), float).reshape(3, 3)
+    q = points @ rot.T
+    inside = np.zeros(len(points), bool)
+    for room in layout.get("rooms", []):
+        poly = np.asarray(room["polygon"], float)
+        inside |= (
+            MPath(poly).contains_points(q[:, :2])
+            & (q[:, 2] > float(room["floor_z"]) + margin_floor)
+            & (q[:, 2] < float(room["ceiling_z"]) - 0.02)
         )
+    return inside
+
+
+def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
+    from reroom.hdr.observe import vertex_normals
+    from reroom.invert.area import area_light_transfer
+    from reroom.invert.basis import CubemapBasis, InclinationBasis
+    from reroom.invert.direct import line_light_transfer
+    from reroom.invert.transfer import hemisphere_transfer
+    from reroom.invert.windows import WindowOpening
+    from reroom.io.mesh import read_ply
+    from reroom.lights import load_lights
+    from reroom.rays import RayCaster
+
+    hdr = _require(scan / "hdr" / "hdr_mesh.ply", "hdr", scan)
+    lab_path = _require(scan / "layout" / "layout_labels.ply", "layout", scan)
+    lay_path = _require(scan / "layout" / "layout.json", "layout", scan)
+    mesh = read_ply(hdr)
     attrs = mesh.vertex_attributes
-    if "radiance" not in attrs or "label" not in lab.vertex_attributes:
-        raise ReroomError(f"{hdr} needs 'radiance_r/g/b' and {labels} a 'label' per vertex")
-    observed = np.asarray(attrs.get("observed", np.ones(len(mesh.vertices))), bool)
-    radiance = np.asarray(attrs["radiance"], np.float64).reshape(-1, 3).mean(axis=1)
-    return (
-        np.asarray(mesh.vertices, np.float64),
-        np.asarray(mesh.faces),
-        np.asarray(mesh.vertex_normals, np.float64),
-        np.where(observed & np.isfinite(radiance), radiance, np.nan),
-        np.asarray(lab.vertex_attributes["label"]).reshape(-1),
+    if "radiance" not in attrs:
+        raise ReroomError(f"{hdr}: no radiance_r/g/b vertex properties")
+    lab = read_ply(lab_path)
+    nv = len(mesh.vertices)
+    if len(lab.vertices) != nv or "label" not in lab.vertex_attributes:
+        raise ReroomError(f"{lab_path}: needs a 'label' for each of the {nv} vertices of {hdr}")
+    try:
+        layout = json.loads(lay_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReroomError(f"{lay_path}: not valid JSON ({exc})") from exc
+    if not layout.get("rooms"):
+        raise ReroomError(f"{lay_path}: no room, so no space to search lights in")
+    labels = np.asarray(lab.vertex_attributes["label"]).reshape(-1).astype(int)
+    rad = np.asarray(attrs["radiance"], np.float64).reshape(nv, 3)
+    observed = np.asarray(attrs.get("observed", np.ones(nv)), bool) & np.isfinite(rad).all(axis=1)
+    pts = np.asarray(mesh.vertices, np.float64)
+    nrm = vertex_normals(mesh)
+
+    # Other lights (never point lights: those are what is estimated here).
+    lights_path = scan / "lights" / "lights.json"
+    light_list, ids = [], np.full(nv, -1, np.int64)
+    if lights_path.is_file():
+        ls = load_lights(lights_path)
+        light_list = ls.lights
+        if len(ls.vertex_light_id) == nv:
+            ids = np.asarray(ls.vertex_light_id, np.int64)
+        elif len(ls.vertex_light_id):
+            notes.append(
+                f"{lights_path}: {len(ls.vertex_light_id)} per-vertex light ids for a mesh of "
+                f"{nv} vertices: ignored (area-light and window surfaces count as lit walls)"
+            )
+    else:
+        notes.append(f"{lights_path} missing: area lights, windows and tubes are not modelled")
+    areas = [x for x in light_list if x.type == "area"]
+    wins = [x for x in light_list if x.type == "window"]
+    lines = [x for x in light_list if x.type == "line"]
+    area_of = np.full(nv, -1, np.int64)
+    win_of = np.full(nv, -1, np.int64)
+    for k, light in enumerate(areas):
+        area_of[ids == light_list.index(light)] = k
+    for k, light in enumerate(wins):
+        win_of[ids == light_list.index(light)] = k
+    # A tube's glowing surface is modelled by its line light: not indirect light.
+    fixture = np.zeros(nv, bool)
+    for light in lines:
+        g = light.geometry
+        p0, p1 = np.asarray(g["p0"], float), np.asarray(g["p1"], float)
+        d = p1 - p0
+        s = np.clip((pts - p0) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+        fixture |= np.linalg.norm(pts - (p0 + s[:, None] * d), axis=1) <= g["radius"] + 0.05
+    area_of[fixture & (area_of < 0) & (win_of < 0)] = len(areas)
+
+    rng = np.random.default_rng(opt.seed)
+    used = sorted(set(opt.classes) | set(opt.profile_classes))
+    ok = observed & np.isin(labels, used) & (np.linalg.norm(nrm, axis=1) > 0)
+    recv = np.flatnonzero(ok & (ids < 0) & ~fixture)
+    n_search = int(np.isin(labels[recv], opt.classes).sum())
+    if n_search < 50:
+        raise ReroomError(
+            f"{hdr}: only {n_search} observed {[CLASS_NAMES.get(c, c) for c in opt.classes]} "
+            "vertices, too few to localize"
+        )
+    if recv.size > opt.profile_measurements:
+        recv = np.sort(rng.choice(recv, opt.profile_measurements, replace=False))
+    caster = RayCaster(mesh)
+    openings = [
+        WindowOpening(w.name, *(np.asarray(w.geometry[k], float) for k in ("centre", "half_u", "half_v", "normal")))
+        for w in wins
+    ]  # fmt: skip
+    basis = CubemapBasis(opt.window_cells)
+    hemi = hemisphere_transfer(
+        caster, mesh, recv, nrm, rad, observed, area_of, openings, basis,
+        rays_per_vertex=opt.rays_per_vertex, seed=opt.seed, window_of_vertex=win_of,
+    )  # fmt: skip
+    p, n = pts[recv], nrm[recv]
+    cols, names = [], []
+    for k, light in enumerate(areas):
+        cols.append(area_light_transfer(caster, mesh, area_of == k, p, n, 256, seed=opt.seed + k))
+        names.append(light.name)
+    for k, light in enumerate(wins):
+        for j in range(basis.size):
+            cols.append(hemi.distant[:, k, j])
+            names.append(f"{light.name}[{j}]")
+    incl = InclinationBasis(opt.line_bins)
+    for light in lines:
+        g = light.geometry
+        f = line_light_transfer(caster, p, n, g["p0"], g["p1"], [0.0, 0.0, 1.0], incl)
+        for j in range(incl.bins):
+            cols.append(f[:, j])
+            names.append(f"{light.name}[{j}]")
+    cols.append(np.pi * hemi.p_unobserved)
+    names.append("unobserved")
+    pil = np.pi * rad[recv].mean(axis=1)
+    classes = sorted(set(int(c) for c in labels[recv]))
+    prob = _Problem(
+        p, n, pil, hemi.indirect.mean(axis=1), np.searchsorted(classes, labels[recv]), classes,
+        np.stack(cols, axis=1), names, caster, float(np.median(pil)),
+    )  # fmt: skip
+    return prob, pts, layout, np.asarray(labels[recv])
+
+
+def _nonneg_fit(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Non-negative least squares with equilibrated columns."""
+    if a.shape[1] == 0:
+        return np.zeros(0)
+    cn = np.linalg.norm(a, axis=0)
+    cn[cn == 0] = 1.0
+    x, _ = nnls(a / cn, b, maxiter=50 * a.shape[1] + 200)
+    return x / cn
+
+
+def _joint_fit(
+    prob: _Problem,
+    pos: np.ndarray,
+    inten: np.ndarray,
+    u: np.ndarray,
+    x: np.ndarray,
+    bounds: tuple[np.ndarray, np.ndarray],
+    soft: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Robust joint solve of point-light positions and intensities and other lights' strengths.
+
+    The albedos ``1/u`` stay fixed (they are re-estimated between solves); visibility is
+    computed at the starting positions and held fixed, as in §6.5.3.
+    """
+    k, m, npts = len(pos), prob.other.shape[1], len(prob.pil)
+    vis = prob.visibility(pos)
+    target = prob.direct(u, np.zeros(m))
+
+    def unpack(z):
+        return z[: 3 * k].reshape(k, 3), z[3 * k : 4 * k], z[4 * k :]
+
+    def res(z):
+        p, i_, xx = unpack(z)
+        r = target - prob.other @ xx
+        if k:
+            r = r - shading_matrix(prob.points, prob.normals, p, vis) @ i_
+        return r / prob.scale
+
+    def jac(z):
+        p, i_, _ = unpack(z)
+        jm = np.zeros((npts, z.size))
+        if k:
+            s, ds = shading_jacobian(prob.points, prob.normals, p, vis)
+            jm[:, : 3 * k] = -(ds * i_[None, :, None]).reshape(npts, 3 * k)
+            jm[:, 3 * k : 4 * k] = -s
+        jm[:, 4 * k :] = -prob.other
+        return jm / prob.scale
+
+    lo, hi = bounds
+    lb = np.concatenate([np.tile(lo, k), np.zeros(k + m)])
+    ub = np.concatenate([np.tile(hi, k), np.full(k + m, np.inf)])
+    z0 = np.clip(np.concatenate([pos.ravel(), inten, x]), lb, np.where(np.isinf(ub), ub, ub - 1e-9))
+    sol = least_squares(
+        res, z0, jac=jac, bounds=(lb, ub), method="trf", loss="soft_l1", f_scale=soft, max_nfev=100
     )
+    p, i_, xx = unpack(sol.x)
+    return p.copy(), i_.copy(), xx.copy(), float(np.sqrt(np.mean(sol.fun**2)))
+
+
+def _update_albedo(prob: _Problem, pos, inten, x, u_prev: np.ndarray) -> np.ndarray:
+    """``u_c = 1 / rho_c``: median of ``(E_ind + A x + S I) / pi L`` over each class."""
+    pred = prob.e_ind + prob.other @ x
+    if len(pos):
+        pred = pred + shading_matrix(prob.points, prob.normals, pos, prob.visibility(pos)) @ inten
+    u = u_prev.copy()
+    for j in range(len(prob.classes)):
+        sel = (prob.cls == j) & (prob.pil > 0)
+        if sel.any():
+            u[j] = float(np.median(pred[sel] / prob.pil[sel]))
+    return u
+
+
+def _albedo_from(prob: _Problem, direct: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
+    """Albedos given the point lights' direct light: the other lights' strengths by NNLS,
+    then :func:`_update_albedo`'s median (with the lights entering as fixed light)."""
+    x = _nonneg_fit(prob.other, prob.direct(u_prev, np.zeros(prob.other.shape[1])) - direct)
+    pred = prob.e_ind + prob.other @ x + direct
+    u = u_prev.copy()
+    for j in range(len(prob.classes)):
+        sel = (prob.cls == j) & (prob.pil > 0)
+        if sel.any():
+            u[j] = float(np.median(pred[sel] / prob.pil[sel]))
+    return u
+
+
+def _lights_direct(
+    prob: _Problem, pos: np.ndarray, inten: np.ndarray, profiles: list, bins: int
+) -> np.ndarray:
+    """Direct light of the point lights at the receivers: isotropic, or by the inclination
+    profile the goniometric test fitted."""
+    from reroom.invert.basis import InclinationBasis
+    from reroom.invert.direct import point_light_transfer
+
+    out = np.zeros(len(prob.pil))
+    for k in range(len(pos)):
+        pr = profiles[k] if k < len(profiles) else None
+        if pr is None:
+            vis = prob.visibility(pos[k : k + 1])
+            out += shading_matrix(prob.points, prob.normals, pos[k : k + 1], vis)[:, 0] * inten[k]
+        else:
+            f = point_light_transfer(
+                prob.caster, prob.points, prob.normals, pr["position"], [0.0, 0.0, 1.0],
+                InclinationBasis(bins),
+            )  # fmt: skip
+            out += f @ np.asarray(pr["profile"])
+    return out
 
 
 def localize_scan(
-    scan_dir: str | Path, options: ScanLocalizeOptions | None = None
-) -> tuple[LocalizeResult, dict]:
-    """Find the point lights of a scanned room from the light on its walls.
+    scan_dir: str | Path,
+    options: ScanLocalizeOptions | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> tuple[ScanLocalizeResult, dict]:
+    """Find the point lights of a scanned room from the direct light on its surfaces.
+
+    Parameters
+    ----------
+    scan_dir:
+        Scan folder with ``hdr/`` and ``layout/`` (and ideally ``lights/``) outputs.
+    options:
+        :class:`ScanLocalizeOptions`.
+    progress:
+        ``progress(stage, done, total)`` after each discovery.
 
     Returns
     -------
     result:
-        Algorithm 1's result; ``positions`` in the scan's frame (metres), intensities
-        times the walls' albedo (W/sr-like units of ``pi * radiance * m^2``).
+        :class:`ScanLocalizeResult`.
     info:
-        Inputs and decisions (counts, ambient level, grid, tolerance).
+        Inputs and decisions (counts, albedos, stopping reason), JSON-ready.
+
+    Raises
+    ------
+    ReroomError
+        A stage output is missing or malformed, or too few surfaces were observed.
     """
     opt = options or ScanLocalizeOptions()
     scan = Path(scan_dir)
-    verts, faces, normals, radiance, labels = _inputs(scan)
-    centre = verts.mean(axis=0)
-    wall = np.flatnonzero((labels == WALL) & np.isfinite(radiance))
-    if wall.size < 50:
-        raise ReroomError(f"{scan}: only {wall.size} observed wall vertices, too few to localize")
-    rng = np.random.default_rng(opt.seed)
-    if wall.size > opt.max_measurements:
-        wall = np.sort(rng.choice(wall, opt.max_measurements, replace=False))
-    nrm = normals[wall]
-    # Scan normals may point either way: turn them towards the room's interior.
-    flip = np.einsum("ij,ij->i", centre - verts[wall], nrm) < 0
-    nrm[flip] *= -1
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    b = np.pi * radiance[wall]
-    ambient = float(np.percentile(b, opt.ambient_percentile))
-    b = np.maximum(b - ambient, 0.0)
-    meas = Measurements(verts[wall], nrm, b)
+    t0 = time.perf_counter()
+    notes: list[str] = []
+    full, verts, layout, labels = _build_problem(scan, opt, notes)
+    rng = np.random.default_rng(opt.seed + 1)
+    search = np.flatnonzero(np.isin(labels, opt.classes))
+    if search.size > opt.max_measurements:
+        search = np.sort(rng.choice(search, opt.max_measurements, replace=False))
+    prob = full.subset(search)
+    t_transfer = time.perf_counter() - t0
 
+    # Candidate positions: free space inside the rooms, away from every surface.
     lo, hi = verts.min(axis=0), verts.max(axis=0)
-    voxel = float((hi - lo).max()) / opt.voxels
-    grid = VoxelGrid.for_box(lo, hi, voxel)
-    dist, _ = cKDTree(verts).query(grid.centres().reshape(-1, 3), workers=-1)
-    valid = (dist >= opt.surface_margin).reshape(grid.shape)
-    radius = 0.5 * float(np.linalg.norm(hi - lo))
-    prop = FieldProposer3D(
-        meas.points, meas.normals, grid, valid, radius, VoteParams3D(max_candidates=2)
+    axes = [np.arange(lo[c] + opt.grid_step / 2, hi[c], opt.grid_step) for c in range(3)]
+    cand = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    dist, _ = cKDTree(verts).query(cand, workers=-1)
+    cand = cand[(dist >= opt.surface_margin) & _room_mask(cand, layout)]
+    if len(cand) == 0:
+        raise ReroomError(f"{scan / 'layout' / 'layout.json'}: no free space inside the rooms")
+    sub = np.sort(rng.choice(len(prob.pil), min(opt.score_measurements, len(prob.pil)), False))
+    s_grid = shading_matrix(
+        prob.points[sub],
+        prob.normals[sub],
+        cand,
+        prob.caster.visibility_matrix(prob.points[sub], prob.normals[sub], cand),
     )
+    s_norm2 = (s_grid**2).sum(axis=0) + 1e-300
+    bounds = (lo + 0.05, hi - 0.05)
+    soft = opt.soft_scale
 
-    from reroom.rays import RayCaster
-
-    caster = RayCaster(verts, faces)
-
-    def visibility(positions: np.ndarray) -> np.ndarray:
-        return caster.visibility_matrix(meas.points, meas.normals, positions)
-
-    tol = (opt.relative_rms**2) * float(np.mean(b**2))
-    margin = opt.surface_margin
-    bounds = (lo + margin, hi - margin)
-    res = localize_lights(
-        meas,
-        prop,
-        bounds,
-        tol,
-        RefineParams(
-            increment=0.01 * float(np.max(b)) * float(np.median(np.linalg.norm(
-                meas.points - centre, axis=1))) ** 2,
-            match_distance=0.1 * radius,
-            # Noisy data: B' dips below zero by the noise long before lights overshoot.
-            negative_tolerance=opt.negative_tolerance,
-            time_limit=opt.time_limit,
-        ),
-        visibility,
+    # First albedos: the robust minimum of pi L / E_ind; first strengths of the other lights.
+    ratio = full.pil / np.maximum(full.e_ind, 1e-12)
+    u = np.array(
+        [1.0 / max(np.percentile(ratio[full.cls == j], opt.albedo_percentile), 1e-6)
+         if np.any(full.cls == j) else 1.0 for j in range(len(full.classes))]
     )  # fmt: skip
-    keep = res.intensities >= opt.min_power * max(float(res.intensities.sum()), 1e-300)
-    res.positions, res.intensities = res.positions[keep], res.intensities[keep]
+    x = _nonneg_fit(prob.other, prob.direct(u, np.zeros(prob.other.shape[1])))
+    pos, inten = np.zeros((0, 3)), np.zeros(0)
+    history: list[dict] = []
+    reason = "max lights"
+    rms = float(np.sqrt(np.mean((prob.direct(u, x) / prob.scale) ** 2)))
+    for it in range(opt.max_lights):
+        if time.perf_counter() - t0 > opt.time_limit:
+            reason = "time limit"
+            break
+        vis = prob.visibility(pos)
+        r = prob.direct(u, x)
+        if len(pos):
+            r = r - shading_matrix(prob.points, prob.normals, pos, vis) @ inten
+        # Robust: a few huge residuals (fixtures, specular spots) must not pick the light.
+        clip = 30.0 * soft * prob.scale
+        rs = np.clip(r[sub], -clip, clip)
+        num = s_grid.T @ rs
+        gain = np.where(num > 0, num**2 / s_norm2, 0.0) / max(float(rs @ rs), 1e-300)
+        j = int(np.argmax(gain))
+        entry = {"candidate": cand[j].tolist(), "gain": float(gain[j])}
+        if gain[j] < opt.min_gain:
+            reason = f"best new light explains {gain[j]:.0%} < {opt.min_gain:.0%}"
+            history.append(entry)
+            break
+        new_pos = np.vstack([pos, cand[j]])
+        new_int = np.concatenate([inten, [max(num[j] / s_norm2[j], 0.0)]])
+        new_u, new_x = u, x
+        for _ in range(2):
+            new_pos, new_int, new_x, _r = _joint_fit(
+                prob, new_pos, new_int, new_u, new_x, bounds, soft
+            )
+            new_u = _update_albedo(prob, new_pos, new_int, new_x, new_u)
+        new_pos, new_int, new_x, new_rms = _joint_fit(
+            prob, new_pos, new_int, new_u, new_x, bounds, soft
+        )
+        share = new_int[-1] / max(float(new_int.sum()), 1e-300)
+        entry.update(positions=new_pos.tolist(), intensities=new_int.tolist(), rms=new_rms)
+        history.append(entry)
+        if share < opt.min_power:
+            reason = f"new light carries {share:.1%} < {opt.min_power:.0%} of the intensity"
+            break
+        pos, inten, u, x, rms = new_pos, new_int, new_u, new_x, new_rms
+        if progress is not None:
+            progress("localize", it + 1, opt.max_lights)
+    keep = inten >= opt.min_power * max(float(inten.sum()), 1e-300)
+    pos, inten = pos[keep], inten[keep]
+    pos, inten, x, pruned = _prune(prob, pos, inten, u, x, bounds, soft, opt.prune_ratio)
+    # Albedos of every class (the floor too) from the lights found, then the goniometric
+    # test; the test changes what the lights put on the surfaces (an isotropic downlight
+    # found low lights the ceiling, the real one does not), so the albedos are estimated
+    # again from its lights and the test repeated from the isotropic lights.
+    u_search = {c: u[j] for j, c in enumerate(full.classes) if c in opt.classes}
+    direct = shading_matrix(full.points, full.normals, pos, full.visibility(pos)) @ inten
+    profiles: list[dict | None] = [None] * len(pos)
+    for _ in range(opt.albedo_rounds):
+        u = _albedo_from(full, direct, u)
+        profiles = _goniometric_test(full, pos, inten, u, (lo, hi), layout, opt)
+        direct = _lights_direct(full, pos, inten, profiles, opt.profile_bins)
+    u = _albedo_from(full, direct, u)
+    pos, inten = pos.copy(), inten.copy()
+    for k, pr in enumerate(profiles):
+        if pr is not None:
+            pos[k], inten[k] = pr["position"], pr["mean_intensity"]
+    res = ScanLocalizeResult(
+        pos,
+        inten,
+        {CLASS_NAMES.get(c, str(c)): float(1.0 / u[j]) for j, c in enumerate(full.classes)},
+        {nm: float(v) for nm, v in zip(prob.other_names, x, strict=True)},
+        rms,
+        time.perf_counter() - t0,
+        history,
+        profiles,
+    )
     info = {
-        "wall_vertices": int(wall.size),
-        "ambient_B": ambient,
-        "grid_shape": list(grid.shape),
-        "voxel_m": voxel,
-        "tolerance_mse": tol,
-        "success": bool(res.success),
-        "reason": res.reason,
-        "iterations": res.iterations,
+        "receivers": int(len(prob.pil)),
+        "receivers_goniometric_test": int(len(full.pil)),
+        "classes": [CLASS_NAMES.get(c, str(c)) for c in opt.classes],
+        "candidates": int(len(cand)),
+        "albedo": res.albedo,
+        "albedo_search": {CLASS_NAMES.get(c, str(c)): float(1 / v) for c, v in u_search.items()},
+        "other_lights": res.other_lights,
+        "rms_relative": rms,
+        "stopped": reason,
+        "leave_one_out": pruned,
+        "goniometric": [
+            None if pr is None else {k: v for k, v in pr.items() if k != "profile"}
+            for pr in profiles
+        ],  # fmt: skip
+        "transfer_seconds": t_transfer,
         "seconds": res.seconds,
-        "mse": res.mse,
+        "notes": notes,
+        "options": asdict(opt),
     }
     return res, info
 
 
-def write_localized_lights(res: LocalizeResult, info: dict, out_dir: str | Path) -> Path:
-    """Write the lights found as ``lights.json`` (light-description schema, ``source: localize``)."""
-    from reroom.lights.lightset import Light, LightSet, write_lights
+def _cost(prob: _Problem, pos, inten, u, x, soft: float) -> float:
+    """Soft-L1 cost of the search receivers' residual (the joint solve's objective)."""
+    r = prob.direct(u, x)
+    if len(pos):
+        r = r - shading_matrix(prob.points, prob.normals, pos, prob.visibility(pos)) @ inten
+    return _soft_cost(r / prob.scale, soft)
 
-    lights = [
-        Light(
-            name=f"localized{i}",
-            type="point",
-            source="localize",
-            geometry={
-                "position": [float(x) for x in p],
-                "axis": [0.0, 0.0, 1.0],
-                "intensity": float(it),
-            },
-            evidence={"intensity_units": "albedo * pi * radiance * m^2 (albedo unknown)"},
-            reason="point light fitted to the direct light on the walls (thesis ch. 6)",
+
+def _prune(prob: _Problem, pos, inten, u, x, bounds, soft: float, ratio: float):
+    """Drop lights the data do not need: leave each out (weakest first), re-solve, and drop
+    it when the cost grows by less than ``ratio`` (the thesis's real scenes drop weak lights,
+    §6.6.3; 2D: :func:`~reroom.localize.solve.prune_lights`). Returns the lights, the other
+    lights' strengths and, per light tried, the cost ratio measured."""
+    tried: list[dict] = []
+    while len(pos) > 1:
+        # The same solve on both sides: a re-solve alone can lower the cost.
+        pos, inten, x, _ = _joint_fit(prob, pos, inten, u, x, bounds, soft)
+        base = _cost(prob, pos, inten, u, x, soft)
+        dropped = False
+        for i in np.argsort(inten):
+            keep = np.arange(len(pos)) != i
+            p2, i2, x2, _ = _joint_fit(prob, pos[keep], inten[keep], u, x, bounds, soft)
+            grow = _cost(prob, p2, i2, u, x2, soft) / max(base, 1e-300)
+            tried.append({"position": pos[i].tolist(), "cost_ratio_without": grow})
+            if grow < ratio:
+                pos, inten, x, dropped = p2, i2, x2, True
+                tried[-1]["dropped"] = True
+                break
+        if not dropped:
+            break
+    return pos, inten, x, tried
+
+
+def _soft_cost(r: np.ndarray, scale: float) -> float:
+    """Soft-L1 cost ``sum 2 (sqrt(1 + (r / scale)^2) - 1)`` (scipy's ``soft_l1``)."""
+    z = (r / scale) ** 2
+    return float(np.sum(2.0 * (np.sqrt(1.0 + z) - 1.0)))
+
+
+def _goniometric_test(
+    prob: _Problem,
+    pos: np.ndarray,
+    inten: np.ndarray,
+    u: np.ndarray,
+    box: tuple[np.ndarray, np.ndarray],
+    layout: dict,
+    opt: ScanLocalizeOptions,
+) -> list[dict | None]:
+    """Test each light as a goniometric light (intensity by inclination) at other heights.
+
+    An isotropic model of a downlight (a narrow beam from the ceiling) puts it far too
+    low: the pool it lights is fitted by a close isotropic light. For each light, the
+    receivers within ``profile_radius`` (horizontally) are fitted with the other lights
+    fixed, by an inclination profile of ``profile_bins`` bins at heights along the
+    vertical through the light (the profile is linear: NNLS), and by the isotropic light
+    at its own position. The best height replaces the light when its soft-L1 cost is at
+    least ``profile_gain`` lower. Returns, per light, None (kept isotropic) or the new
+    position, the profile and its mean intensity over the sphere.
+    """
+    from reroom.invert.basis import InclinationBasis
+    from reroom.invert.direct import point_light_transfer
+
+    out: list[dict | None] = []
+    if len(pos) == 0:
+        return out
+    basis = InclinationBasis(opt.profile_bins)
+    edges = np.linspace(0.0, np.pi, opt.profile_bins + 1)
+    solid = 2.0 * np.pi * (np.cos(edges[:-1]) - np.cos(edges[1:]))
+    target = prob.direct(u, np.zeros(prob.other.shape[1]))
+    vis = prob.visibility(pos)
+    s_all = shading_matrix(prob.points, prob.normals, pos, vis)
+    scale = opt.soft_scale * prob.scale
+    for k in range(len(pos)):
+        near = np.linalg.norm(prob.points[:, :2] - pos[k, :2], axis=1) < opt.profile_radius
+        if near.sum() < 20:
+            out.append(None)
+            continue
+        p_n, n_n = prob.points[near], prob.normals[near]
+        others = np.delete(s_all[near], k, axis=1)
+        base = np.hstack([prob.other[near], others])
+        b = target[near]
+        a_iso = np.hstack([base, s_all[near, k : k + 1]])
+        iso_cost = _soft_cost(b - a_iso @ _nonneg_fit(a_iso, b), scale)
+        heights = np.arange(box[0][2] + 0.1, box[1][2] - 0.02, opt.profile_step)
+        cands = np.column_stack(
+            [np.full_like(heights, pos[k, 0]), np.full_like(heights, pos[k, 1]), heights]
         )
-        for i, (p, it) in enumerate(zip(res.positions, res.intensities, strict=True))
+        cands = cands[_room_mask(cands, layout, margin_floor=0.1)]
+        best = None
+        for c in cands:
+            f = point_light_transfer(prob.caster, p_n, n_n, c, [0.0, 0.0, 1.0], basis)
+            a = np.hstack([base, f])
+            coef = _nonneg_fit(a, b)
+            cost = _soft_cost(b - a @ coef, scale)
+            if best is None or cost < best[0]:
+                best = (cost, c, coef[-basis.bins :])
+        if best is None or best[0] > (1.0 - opt.profile_gain) * iso_cost:
+            out.append(None)
+            continue
+        profile = best[2]
+        out.append({
+            "position": best[1].tolist(),
+            "moved_m": float(np.linalg.norm(best[1] - pos[k])),
+            "profile": profile.tolist(),
+            "mean_intensity": float(profile @ solid / (4.0 * np.pi)),
+            "cost_isotropic": iso_cost,
+            "cost_goniometric": float(best[0]),
+        })  # fmt: skip
+    return out
+
+
+def _localized_light(name: str, p: np.ndarray, it: float, info: dict):
+    from reroom.lights.lightset import Light
+
+    return Light(
+        name=name,
+        type="point",
+        source="localize",
+        geometry={"position": [float(c) for c in p], "axis": [0.0, 0.0, 1.0]},
+        evidence={
+            "intensity": float(it),
+            "intensity_units": "pi * radiance / albedo * m^2 (the scan's radiance units)",
+            "albedo": info.get("albedo", {}),
+        },
+        reason=LOCALIZED_REASON,
+    )
+
+
+def merge_localized_lights(
+    lights, res: ScanLocalizeResult, info: dict, match_distance: float = 0.5
+) -> list[str]:
+    """Put the localized point lights into a light set (in place).
+
+    A point light already in ``lights`` within ``match_distance`` of a localized one (a
+    detected guess, or an earlier localization) is replaced in place (its name and index
+    kept, so ``vertex_light_id`` stays valid); the others are appended as ``localizedK``.
+    User-placed point lights are never replaced. Returns what was done, in words.
+    """
+    done = []
+    points = [i for i, x in enumerate(lights.lights) if x.type == "point" and x.source != "user"]
+    used: set[int] = set()
+    taken = {x.name for x in lights.lights}
+    k = 0
+    for p, it in zip(res.positions, res.intensities, strict=True):
+        best, best_d = None, match_distance
+        for i in points:
+            d = float(np.linalg.norm(lights.lights[i].anchor() - p))
+            if i not in used and d < best_d:
+                best, best_d = i, d
+        if best is not None:
+            old = lights.lights[best]
+            new = _localized_light(old.name, p, it, info)
+            new.evidence["replaces"] = {
+                "position": old.geometry.get("position"),
+                "reason": old.reason,
+            }
+            lights.lights[best] = new
+            used.add(best)
+            done.append(
+                f"{old.name}: moved {best_d:.2f} m to {np.round(p, 2).tolist()} ({LOCALIZED_REASON})"
+            )
+        else:
+            while f"localized{k}" in taken:
+                k += 1
+            name = f"localized{k}"
+            taken.add(name)
+            lights.lights.append(_localized_light(name, p, it, info))
+            done.append(f"{name}: added at {np.round(p, 2).tolist()} ({LOCALIZED_REASON})")
+    lights.meta["localize"] = info
+    return done
+
+
+def write_localized_lights(res: ScanLocalizeResult, info: dict, out_dir: str | Path) -> Path:
+    """Write the localized lights alone as ``lights.json`` (light-description schema).
+
+    Also writes ``localize.json`` (the run's ``info`` and the discoveries) next to it.
+    """
+    from reroom.io.atomic import atomic_write_json
+    from reroom.lights.lightset import LightSet, write_lights
+
+    ls = LightSet(notes=[], meta={})
+    merge_localized_lights(ls, res, info)
+    path = write_lights(ls, out_dir)
+    report = {"info": info, "history": res.history, "goniometric": res.goniometric}
+    atomic_write_json(Path(out_dir) / "localize.json", report)
+    return path
+
+
+def localize_into_lights(
+    scan_dir: str | Path,
+    res: ScanLocalizeResult,
+    info: dict,
+    lights_dir: str | Path | None = None,
+    match_distance: float = 0.5,
+) -> tuple[Path, list[str]]:
+    """Merge the localized point lights into ``SCAN/lights/lights.json`` (the hand-off).
+
+    ``reroom invert`` reads point lights from there, so after this it needs no
+    user-placed positions. See :func:`merge_localized_lights` for how a detected point
+    light at the same place is replaced rather than duplicated.
+
+    Returns
+    -------
+    path:
+        The ``lights.json`` written.
+    done:
+        What changed, in words.
+
+    Raises
+    ------
+    reroom.lights.LightsError
+        ``lights.json`` is missing or malformed (run ``reroom lights SCAN`` first).
+    """
+    from reroom.lights.lightset import load_lights, write_lights
+
+    folder = Path(lights_dir) if lights_dir is not None else Path(scan_dir) / "lights"
+    lights = load_lights(folder / "lights.json")
+    done = merge_localized_lights(lights, res, info, match_distance)
+    lights.notes = [n for n in lights.notes if "localiz" not in n] + [
+        f"{len(res.positions)} point light(s) from `reroom localize` (thesis ch. 6)"
     ]
-    notes = [] if res.success else [f"localization did not converge: {res.reason}"]
-    return write_lights(LightSet(lights=lights, notes=notes, meta={"localize": info}), out_dir)
+    return write_lights(lights, folder), done

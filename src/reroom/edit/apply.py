@@ -1,0 +1,1034 @@
+"""Apply edits to the recovered room model: the Mitsuba scene dict of the edited room.
+
+:func:`edited_scene` starts from :func:`reroom.edit.model.model_scene` (the scan mesh with
+its per-vertex albedo, and every recovered light with its distribution) and applies the
+edit operations of :mod:`reroom.edit.edits` in order:
+
+* ``empty``: the scan mesh is replaced by the layout's empty-room shell
+  (``layout/layout.json`` through :func:`reroom.layout.emptyroom.empty_room_mesh`, in the
+  mesh frame), one diffuse material per label: the solved cluster albedo of wall, floor and
+  ceiling, the median per-vertex albedo of door and baseboard vertices. The pane closing
+  each window opening is dropped (the window's portal takes its place) and so are the
+  panes closing passages (the rooms' shells join). The fittings around point and line
+  lights (lamp shades, tube baffles: unlabelled scan geometry near the light) are kept,
+  because the recovered distributions were solved with them in place.
+* ``repaint``: a colour sets the per-vertex albedo of every vertex of that label
+  (``layout/layout_labels.ply``); a texture replaces the faces of that label by a mesh
+  with planar texture coordinates (projected on the axis plane closest to each face,
+  ``metres_per_tile`` per repeat).
+* ``light``: ``off`` removes the emitter (an area light's surface stays, with the albedo of
+  the cluster around it; a window's opening turns black); ``scale`` and ``color`` multiply
+  the emitted radiance; ``move_to`` moves a point light, the centre of a line light, or an
+  area light's emitting faces (the place it left is filled with the surrounding cluster's
+  albedo).
+* ``add_light``: a ``reroom_goniometric`` point light; ``intensity`` is the radiant
+  intensity (model units) of an isotropic light, or the *peak* intensity of an IES
+  profile (its brightest direction).
+* ``window``: the new HDRI averaged over each cube-map cell of the recovered distant
+  light, scaled into model units (see :func:`swap_window_environment`).
+* ``insert``: a bundled or loaded object (:mod:`reroom.edit.furniture`), diffuse, which
+  must stand inside a room's floor polygon.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
+from reroom.errors import ReroomError, ScanError
+from reroom.io.atomic import atomic_write_json
+from reroom.io.mesh import read_ply, write_triangle_ply
+
+__all__ = [
+    "RoomModel",
+    "edited_scene",
+    "environment_cells",
+    "load_model",
+    "swap_window_environment",
+    "INSERT_PREFIX",
+]
+
+#: Keys of inserted objects in the scene dict (``insert_<name>``): the composite drops them.
+INSERT_PREFIX = "insert_"
+_LABEL_IDS = {"wall": 0, "floor": 1, "ceiling": 2, "door": 3, "window": 4, "baseboard": 5}
+_OTHER = 255
+_PORTAL_PANE = 254
+#: Unlabelled scan geometry this close to a point light (or a line light's segment) is its
+#: fitting (a shade, a housing, baffles), kept in the empty room; pieces bigger than
+#: ``_FIXTURE_MAX`` are furniture that happens to stand near a lamp.
+_FIXTURE_NEAR_POINT = 0.35
+_FIXTURE_NEAR_LINE = 0.15
+_FIXTURE_MAX = 2.0
+
+
+@dataclass
+class RoomModel:
+    """The recovered room as the edits see it (loaded by :func:`load_model`).
+
+    Attributes
+    ----------
+    doc:
+        ``invert/scene.json``.
+    vertices, faces:
+        The scan mesh (from ``albedo.ply``).
+    albedo, known:
+        Per-vertex albedo as solved (``< 0`` where unknown) and where it is known.
+    labels:
+        Per-vertex layout label (``layout_labels.ply``) or ``None``.
+    layout:
+        ``layout.json`` or ``None``; ``rotation`` its mesh-to-aligned rotation.
+    """
+
+    scan_dir: Path
+    invert_dir: Path
+    lights_dir: Path
+    layout_dir: Path
+    doc: dict[str, Any]
+    vertices: np.ndarray
+    faces: np.ndarray
+    albedo: np.ndarray
+    known: np.ndarray
+    light_flag: np.ndarray
+    labels: np.ndarray | None
+    layout: dict[str, Any] | None
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    @property
+    def lights(self) -> dict[str, dict[str, Any]]:
+        """Light name -> its ``scene.json`` entry."""
+        return {light["name"]: light for light in self.doc.get("lights", [])}
+
+    @property
+    def light_types(self) -> dict[str, str]:
+        return {n: light["type"] for n, light in self.lights.items()}
+
+    @property
+    def materials(self) -> dict[str, np.ndarray]:
+        """Solved material cluster name -> albedo."""
+        return {
+            m["name"]: np.asarray(m["albedo"], float)
+            for m in self.doc.get("materials", [])
+            if m.get("albedo") is not None
+        }
+
+    def targets(self) -> list[str]:
+        """Repaint targets: the labels this room has, and its material clusters."""
+        have = set(self.materials)
+        if self.labels is not None:
+            present = set(np.unique(self.labels).tolist())
+            have |= {t for t in LABEL_TARGETS if _LABEL_IDS[t] in present}
+        if self.layout is not None:
+            have |= {"wall", "floor", "ceiling"}
+            if any(r.get("baseboard") for r in self.layout.get("rooms", [])):
+                have.add("baseboard")
+            if any(
+                o.get("kind") == "door"
+                for r in self.layout.get("rooms", [])
+                for o in r.get("openings", [])
+            ):
+                have.add("door")
+        return sorted(have)
+
+    def label_albedo(self, label: str) -> np.ndarray:
+        """The albedo of a label: its solved cluster, else the median of its vertices."""
+        mats = self.materials
+        if label in mats:
+            return np.clip(mats[label], 0.0, 1.0)
+        if self.labels is not None and label in _LABEL_IDS:
+            sel = (self.labels == _LABEL_IDS[label]) & self.known
+            if sel.sum() >= 3:
+                return np.clip(np.median(self.albedo[sel], axis=0), 0.0, 1.0)
+        if label in ("window",) and "wall" in mats:
+            return np.clip(mats["wall"], 0.0, 1.0)
+        return np.clip(np.median(self.albedo[self.known], axis=0), 0.0, 1.0)
+
+    def rooms(self) -> list[tuple[np.ndarray, float, float, str]]:
+        """``(polygon_xy, floor_z, ceiling_z, name)`` of each room, in the aligned frame."""
+        if self.layout is None:
+            return []
+        return [
+            (np.asarray(r["polygon"], float), float(r["floor_z"]), float(r["ceiling_z"]), r["name"])
+            for r in self.layout.get("rooms", [])
+        ]
+
+    def to_aligned(self, p: np.ndarray) -> np.ndarray:
+        return np.asarray(p, float) @ self.rotation.T
+
+    def to_mesh(self, p: np.ndarray) -> np.ndarray:
+        return np.asarray(p, float) @ self.rotation
+
+
+def _read_json(path: Path, hint: str) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except OSError as exc:
+        raise ScanError(path, f"is missing: {hint}") from exc
+    except ValueError as exc:
+        raise ScanError(path, f"is not valid JSON ({exc})") from exc
+
+
+def load_model(
+    scan_dir: str | Path,
+    invert_dir: str | Path | None = None,
+    lights_dir: str | Path | None = None,
+    layout_dir: str | Path | None = None,
+) -> RoomModel:
+    """Load what the edits need: ``invert/`` (scene.json, albedo.ply) and ``layout/``.
+
+    The layout is optional (without it ``empty``, label repaints and the floor check of
+    ``insert`` are unavailable and say so).
+
+    Raises
+    ------
+    ScanError
+        When ``scene.json`` or ``albedo.ply`` is missing or unreadable, or the layout's
+        labels do not match the mesh.
+    """
+    scan_dir = Path(scan_dir)
+    inv = Path(invert_dir) if invert_dir is not None else scan_dir / "invert"
+    lit = Path(lights_dir) if lights_dir is not None else scan_dir / "lights"
+    lay = Path(layout_dir) if layout_dir is not None else scan_dir / "layout"
+    doc = _read_json(inv / "scene.json", "run `reroom invert SCAN` first")
+    mesh = read_ply(inv / doc.get("albedo_file", "albedo.ply"))
+    attrs = mesh.vertex_attributes
+    if "albedo" not in attrs:
+        raise ScanError(inv / "albedo.ply", "has no albedo_r/g/b vertex properties")
+    albedo = np.asarray(attrs["albedo"], np.float64)
+    known = np.all(albedo >= 0, axis=1) & np.all(np.isfinite(albedo), axis=1)
+    light_flag = np.asarray(attrs.get("light", np.zeros(len(albedo))), bool)
+    labels = None
+    lab_path = lay / "layout_labels.ply"
+    if lab_path.is_file():
+        lab_mesh = read_ply(lab_path)
+        lab = lab_mesh.vertex_attributes.get("label")
+        if lab is None:
+            raise ScanError(lab_path, "has no 'label' vertex property")
+        if len(lab) != len(albedo):
+            raise ScanError(lab_path, f"has {len(lab)} labels for {len(albedo)} vertices")
+        labels = np.asarray(lab).astype(np.int64)
+    layout = None
+    rotation = np.eye(3)
+    if (lay / "layout.json").is_file():
+        layout = _read_json(lay / "layout.json", "run `reroom layout SCAN` first")
+        rotation = np.asarray(layout.get("rotation", np.eye(3)), float)
+    return RoomModel(
+        scan_dir,
+        inv,
+        lit,
+        lay,
+        doc,
+        np.asarray(mesh.vertices, float),
+        np.asarray(mesh.faces, np.int64),
+        albedo,
+        known,
+        light_flag,
+        labels,
+        layout,
+        rotation,
+    )
+
+
+# ---------------------------------------------------------------------- helpers
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    """``n`` nearly uniform unit directions (deterministic)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5.0**0.5) * k
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def environment_cells(hdri: str | Path, basis: Any, samples: int = 200_000) -> np.ndarray:
+    """``(6 n^2, 3)`` mean radiance of a lat-long HDRI over each cell of a cube-map basis.
+
+    ``hdri`` is a shipped name or an EXR path; the mean is over ``samples`` nearly
+    uniform directions (the portal's lat-long convention, no rotation).
+    """
+    from reroom.data import hdri_path
+    from reroom.render.emitters import latlong_lookup, load_hdri
+
+    d = _fibonacci_sphere(samples)
+    cell = basis.cell_of(d)
+    count = np.bincount(cell, minlength=basis.size).astype(float)
+    vals = latlong_lookup(load_hdri(hdri_path(str(hdri))), d)
+    out = np.stack(
+        [np.bincount(cell, weights=vals[:, c], minlength=basis.size) for c in range(3)], 1
+    )
+    return out / np.maximum(count, 1.0)[:, None]
+
+
+def swap_window_environment(
+    light: dict[str, Any],
+    hdri: str | Path,
+    was: str | Path | None = None,
+    scale: float = 1.0,
+    samples: int = 200_000,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The cube-map cells of a new outdoor HDRI for a recovered window, in model units.
+
+    Each cell of the window's recovered distant light (``distribution.cells``, the
+    direction a ray *leaves* the room in) gets the new HDRI's mean radiance over its
+    directions (``samples`` directions on the sphere, the portal's lat-long convention,
+    no rotation). The cells are weighted by how much the window sees through them,
+    ``w_j = integral over the cell of max(0, -d . n_in)`` (the cosine at the opening:
+    the light that enters). Units: with ``was`` (the HDRI the scan was lit by), per
+    channel the least-squares factor ``s = sum w was rec / sum w was^2`` that maps
+    ``was`` onto the recovered cells ``rec``; without it, one factor for all channels so
+    that the weighted mean luminance equals the recovered one's (the new sky keeps its
+    colour). Times ``scale``.
+
+    Returns
+    -------
+    cells, factor
+        ``(6 n^2, 3)`` new cells and the ``(3,)`` factor applied to the HDRI.
+    """
+    from reroom.invert.basis import CubemapBasis
+
+    dist = light.get("distribution", {})
+    if dist.get("basis") != "cubemap":
+        raise ReroomError(f"window {light.get('name')!r} has no cube-map distribution to swap")
+    basis = CubemapBasis(int(dist.get("n", 4)))
+    rec = np.maximum(np.asarray(dist["cells"], float), 0.0)
+    d = _fibonacci_sphere(samples)
+    cell = basis.cell_of(d)
+    count = np.bincount(cell, minlength=basis.size).astype(float)
+    normal = np.asarray(light["geometry"]["normal"], float)
+    cos_out = np.maximum(-(d @ normal), 0.0)
+    w = np.bincount(cell, weights=cos_out, minlength=basis.size)
+
+    new = environment_cells(hdri, basis, samples)
+    if w.sum() <= 0:
+        w = count  # a degenerate normal: use every direction
+    if was is not None:
+        old = environment_cells(was, basis, samples)
+        num = (w[:, None] * old * rec).sum(0)
+        den = (w[:, None] * old * old).sum(0)
+        factor = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
+    else:
+        lum = np.array([0.2126, 0.7152, 0.0722])
+        den = float((w * (new @ lum)).sum())
+        factor = np.full(3, float((w * (rec @ lum)).sum()) / den if den > 0 else 0.0)
+    factor = factor * float(scale)
+    return new * factor, factor
+
+
+def _shape_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, **attrs: np.ndarray) -> str:
+    write_triangle_ply(path, vertices, faces, {k: v for k, v in attrs.items()})
+    return str(path)
+
+
+def _diffuse(rgb: np.ndarray | list[float], twosided: bool = False) -> dict[str, Any]:
+    bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(x) for x in rgb]}}
+    return {"type": "twosided", "bsdf": bsdf} if twosided else bsdf
+
+
+def _planar_uv(tri: np.ndarray) -> np.ndarray:
+    """Texture coordinates (metres) of unwelded triangles ``(F, 3, 3)``: each face
+    projected on the axis plane closest to it (x-y for floors and ceilings, the wall's
+    horizontal axis and z for walls), so the texture keeps its scale on every face."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    axis = np.argmax(np.abs(n), axis=1)
+    uv = np.empty(tri.shape[:2] + (2,))
+    pairs = {0: (1, 2), 1: (0, 2), 2: (0, 1)}
+    for a, (i, j) in pairs.items():
+        sel = axis == a
+        uv[sel, :, 0] = tri[sel][:, :, i]
+        uv[sel, :, 1] = tri[sel][:, :, j]
+    return uv
+
+
+def _textured_shape(
+    path: Path, vertices: np.ndarray, faces: np.ndarray, texture: str, metres_per_tile: float
+) -> dict[str, Any]:
+    """A PLY shape of the faces, unwelded, with planar ``u, v`` and a tiled bitmap albedo."""
+    tri = np.asarray(vertices, float)[np.asarray(faces)]
+    uv = _planar_uv(tri) / float(metres_per_tile)
+    v = tri.reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    uv = uv.reshape(-1, 2)
+    filename = _shape_ply(path, v, f, u=uv[:, 0], v=uv[:, 1])
+    exr = Path(texture).suffix.lower() == ".exr"
+    return {
+        "type": "ply",
+        "filename": filename,
+        "face_normals": True,
+        "bsdf": {
+            "type": "twosided",
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {
+                    "type": "bitmap",
+                    "filename": str(Path(texture).resolve()),
+                    # 8-bit images are sRGB-encoded (decoded to linear); EXRs are linear.
+                    "raw": bool(exr),
+                    "wrap_mode": "repeat",
+                },
+            },
+        },
+    }
+
+
+def _face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Label of each face: the label of at least two of its vertices, else 'other'."""
+    fl = labels[faces]
+    out = np.full(len(faces), _OTHER, np.int64)
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        agree = fl[:, a] == fl[:, b]
+        out = np.where(agree & (out == _OTHER), fl[:, a], out)
+    return out
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def _fixture_faces(
+    model: RoomModel, emitting: np.ndarray, lights: list[dict[str, Any]] | None = None
+) -> np.ndarray:
+    """Scan faces that belong to the fittings of ``lights`` (default: every light).
+
+    Unlabelled connected pieces of the scan mesh near a point light or a line light's
+    segment, no larger than ``_FIXTURE_MAX`` (a lamp shade and pole, a tube's housing);
+    with every light, also the pieces holding vertices ``reroom invert`` marked as a
+    light's glowing fitting.
+    """
+    v = model.vertices
+    if lights is None:
+        # Each light's fitting on its own (the size limit is per fitting), and the pieces
+        # holding glowing-fitting vertices.
+        keep = _grown_pieces(model, emitting, model.light_flag, grow=False)
+        for light in model.doc.get("lights", []):
+            if light["type"] in ("point", "line"):
+                keep |= _fixture_faces(model, emitting, [light])
+        return keep
+    near = np.zeros(len(v), bool)
+    for light in lights:
+        geo = light.get("geometry", {})
+        if light["type"] == "point":
+            near |= np.linalg.norm(v - np.asarray(geo["position"], float), axis=1) < (
+                _FIXTURE_NEAR_POINT
+            )
+        elif light["type"] == "line":
+            near |= (
+                _segment_distance(v, np.asarray(geo["p0"], float), np.asarray(geo["p1"], float))
+                < _FIXTURE_NEAR_LINE
+            )
+    return _grown_pieces(model, emitting, near, grow=True)
+
+
+def _grown_pieces(
+    model: RoomModel, emitting: np.ndarray, near: np.ndarray, grow: bool
+) -> np.ndarray:
+    """Unlabelled pieces of the scan mesh holding a ``near`` vertex (and, with ``grow``,
+    the pieces touching them), no larger than ``_FIXTURE_MAX`` together."""
+    v, f = model.vertices, model.faces
+    if model.labels is None:
+        cand = np.ones(len(f), bool)
+    else:
+        cand = _face_labels(model.labels, f) == _OTHER
+    cand &= ~emitting
+    idx = np.flatnonzero(cand)
+    if len(idx) == 0:
+        return np.zeros(len(f), bool)
+    from scipy.spatial import cKDTree
+
+    sub = trimesh.Trimesh(v, f[idx], process=False)
+    comps = [
+        idx[c]
+        for c in trimesh.graph.connected_components(sub.face_adjacency, nodes=np.arange(len(idx)))
+    ]
+    verts = [np.unique(f[c]) for c in comps]
+    picked = [bool(near[vs].any()) for vs in verts]
+    # A fitting made of separate pieces (a shade's rims, a box's sides) is grown from the
+    # pieces near the light to those touching them (within 1 cm).
+    changed = grow and any(picked)
+    while changed:
+        changed = False
+        sel = np.concatenate([vs for vs, p in zip(verts, picked, strict=True) if p])
+        tree = cKDTree(v[sel])
+        lo, hi = v[sel].min(0), v[sel].max(0)
+        for k, vs in enumerate(verts):
+            if picked[k]:
+                continue
+            d, _ = tree.query(v[vs], k=1, distance_upper_bound=0.01)
+            if not np.isfinite(d).any():
+                continue
+            lo2, hi2 = np.minimum(lo, v[vs].min(0)), np.maximum(hi, v[vs].max(0))
+            if np.linalg.norm(hi2 - lo2) <= _FIXTURE_MAX:
+                picked[k], changed = True, True
+                lo, hi = lo2, hi2
+    keep = np.zeros(len(f), bool)
+    for c, vs, p in zip(comps, verts, picked, strict=True):
+        if p and np.linalg.norm(v[vs].max(0) - v[vs].min(0)) <= _FIXTURE_MAX:
+            keep[c] = True
+    return keep
+
+
+def _digest(obj: Any) -> str:
+    return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+@dataclass
+class _LightState:
+    off: bool = False
+    scale: float = 1.0
+    color: np.ndarray = field(default_factory=lambda: np.ones(3))
+    move_to: np.ndarray | None = None
+    window: dict[str, Any] | None = None
+
+
+def _inside_room(model: RoomModel, mesh: trimesh.Trimesh, tol: float = 0.02) -> str | None:
+    """``None`` if the object's footprint lies in one room's floor polygon, else why not."""
+    from reroom.synth.room import point_in_polygon
+
+    rooms = model.rooms()
+    pts = model.to_aligned(np.asarray(mesh.vertices))
+    if not rooms:
+        lo, hi = model.vertices.min(0), model.vertices.max(0)
+        ok = np.all(np.asarray(mesh.vertices) >= lo - tol) and np.all(
+            np.asarray(mesh.vertices) <= hi + tol
+        )
+        return None if ok else "outside the scan's bounding box (no layout to check the floor)"
+    hull = pts[:, :2]
+    try:
+        from scipy.spatial import ConvexHull
+
+        hull = hull[ConvexHull(hull).vertices]
+    except Exception:  # a flat or degenerate footprint: test every vertex
+        pass
+    for poly, zf, zc, _name in rooms:
+        inside = point_in_polygon(hull[:, 0], hull[:, 1], poly)
+        if not inside.all():
+            # Points within ``tol`` of an edge count as inside (an object against a wall).
+            out = hull[~inside]
+            a, b = poly, np.roll(poly, -1, axis=0)
+            dmin = np.full(len(out), np.inf)
+            for p0, p1 in zip(a, b, strict=True):
+                ab = p1 - p0
+                t = np.clip(((out - p0) @ ab) / max(float(ab @ ab), 1e-12), 0, 1)
+                dmin = np.minimum(dmin, np.linalg.norm(out - (p0 + t[:, None] * ab), axis=1))
+            if np.any(dmin > tol):
+                continue
+        if pts[:, 2].min() < zf - 0.05 or pts[:, 2].max() > zc + tol:
+            return f"not between the floor ({zf:.2f} m) and the ceiling ({zc:.2f} m)"
+        return None
+    names = [r[3] for r in rooms]
+    return f"outside the floor polygon of every room ({names})"
+
+
+# ---------------------------------------------------------------------- the edited scene
+def edited_scene(
+    scan_dir: str | Path,
+    edits: Any,
+    *,
+    invert_dir: str | Path | None = None,
+    lights_dir: str | Path | None = None,
+    layout_dir: str | Path | None = None,
+    work_dir: str | Path | None = None,
+    max_depth: int = 8,
+) -> dict[str, Any]:
+    """The Mitsuba scene dict (no sensor) of the recovered model with ``edits`` applied.
+
+    Parameters
+    ----------
+    scan_dir:
+        The scan folder.
+    edits:
+        An edit document, a list of OPs, one OP, or the path of an edit file (see
+        :mod:`reroom.edit.edits`); an empty list gives the unedited model.
+    invert_dir, lights_dir, layout_dir:
+        Stage outputs (default ``SCAN/invert``, ``SCAN/lights``, ``SCAN/layout``).
+    work_dir:
+        Where the meshes and documents of the edited model go (default
+        ``SCAN/render/edits``); each edit list gets its own sub-folder named by a hash
+        of the edits, so scene dicts of different edits can coexist.
+    max_depth:
+        Path depth of the ``path`` integrator.
+
+    Returns
+    -------
+    dict
+        Shapes: ``room`` (scan mesh) or ``room_<label>`` (empty shell), ``fixtures``,
+        ``paint_<target>`` (textured repaints), ``light_NN`` (the model's lights, ``NN``
+        their index in ``scene.json``), ``light_NN_patch`` (where an area light was),
+        ``added_<name>`` (added lights), ``insert_<name>`` (inserted objects).
+
+    Raises
+    ------
+    EditError
+        For malformed edits, names the room does not have (listing those it has), a
+        missing layout where an edit needs it, or an object outside the room.
+    ScanError
+        When a stage output is missing or unreadable.
+    """
+    from reroom.edit.model import model_scene
+
+    model = load_model(scan_dir, invert_dir, lights_dir, layout_dir)
+    ops, source = as_ops(edits)
+    check_names(ops, model.light_types, model.targets(), source)
+    scan_dir = Path(scan_dir)
+    work_root = Path(work_dir) if work_dir is not None else scan_dir / "render" / "edits"
+    work = work_root / _digest({"edits": ops, "model": str(model.invert_dir), "d": max_depth})
+    work.mkdir(parents=True, exist_ok=True)
+
+    # Fold the edits, in order, into the final state of each part of the room.
+    empty = False
+    paint: dict[str, dict[str, Any]] = {}
+    states: dict[str, _LightState] = {}
+    added: dict[str, dict[str, Any]] = {}
+    inserts: list[dict[str, Any]] = []
+    for i, op in enumerate(ops):
+        kind = op["op"]
+        where = f"{source}: edit {i} ({kind})"
+        if kind == "empty":
+            if model.layout is None:
+                raise EditError(
+                    f"{where}: needs {model.layout_dir / 'layout.json'}: run `reroom layout`"
+                )
+            empty = True
+        elif kind == "repaint":
+            paint[op["target"]] = op
+        elif kind == "light":
+            if op["name"] in added:
+                a = added[op["name"]]
+                a["off"] = a.get("off", False) or op.get("off", False)
+                a["intensity"] *= op.get("scale", 1.0)
+                a["color"] = list(np.asarray(a["color"]) * np.asarray(op.get("color", [1, 1, 1])))
+                if "move_to" in op:
+                    a["position"] = op["move_to"]
+                continue
+            st = states.setdefault(op["name"], _LightState())
+            st.off = st.off or op.get("off", False)
+            st.scale *= op.get("scale", 1.0)
+            st.color = st.color * np.asarray(op.get("color", [1.0, 1.0, 1.0]))
+            if "move_to" in op:
+                st.move_to = np.asarray(op["move_to"], float)
+        elif kind == "add_light":
+            added[op["name"]] = dict(op)
+        elif kind == "window":
+            states.setdefault(op["name"], _LightState()).window = op
+        elif kind == "insert":
+            inserts.append(op)
+
+    # Per-vertex albedo with colour repaints (the model scene reads it from the work doc).
+    albedo = model.albedo.copy()
+    textured: dict[str, dict[str, Any]] = {}
+    for target, op in paint.items():
+        if target in _LABEL_IDS:
+            if model.labels is None and not empty:
+                raise EditError(
+                    f"{source}: repaint {target!r} needs {model.layout_dir / 'layout_labels.ply'}"
+                )
+            if "color" in op and model.labels is not None:
+                albedo[model.labels == _LABEL_IDS[target]] = op["color"]
+        if "texture" in op:
+            textured[target] = op
+    # Light fittings (shades, housings, baffles): the light they reflect is already in
+    # the light's solved distribution (it was fitted to what the room receives), and
+    # their per-vertex albedo is unreliable (lit from a few centimetres, where the
+    # transfer's 1/d^2 is least accurate: the tube's baffles solve to ~0.75 where the
+    # truth is 0.04). Rendered with any albedo they add that light a second time, and
+    # lit from centimetres they do it as fireflies (0.5 % of the pixels of a 64-spp
+    # view, 0.02 % with the tube off). Every fitting vertex is therefore black.
+    emitting = _emitting_faces(model)
+    glow = (model.light_flag[model.faces].sum(axis=1) >= 2) & ~emitting
+    fittings = _fixture_faces(model, emitting) & ~glow
+    on_fitting = np.zeros(len(albedo), bool)
+    on_fitting[np.unique(model.faces[fittings])] = True
+    albedo[on_fitting] = 0.0
+    doc = copy.deepcopy(model.doc)
+    write_triangle_ply(
+        work / "albedo.ply",
+        model.vertices,
+        model.faces,
+        {"albedo": albedo.astype(np.float32), "light": model.light_flag.astype(np.uint8)},
+    )
+    doc["albedo_file"] = str((work / "albedo.ply").resolve())
+    for light in doc.get("lights", []):
+        if light["type"] == "window":
+            exr = light.get("environment_exr", f"window_{light['name']}.exr")
+            light["environment_exr"] = str((model.invert_dir / exr).resolve())
+    atomic_write_json(work / "scene.json", doc)
+    scene = model_scene(
+        scan_dir, work, model.lights_dir, work_dir=work / "meshes", max_depth=max_depth
+    )
+
+    # Lights.
+    key_of = {light["name"]: f"light_{k:02d}" for k, light in enumerate(doc.get("lights", []))}
+    for name, st in states.items():
+        _apply_light(scene, key_of[name], model.lights[name], st, model, work)
+
+    for name, a in added.items():
+        if a.get("off"):
+            continue
+        scene[f"added_{name}"] = _added_light(a)
+
+    # A moved point or line light takes its fitting along (a lamp's shade and pole, a
+    # tube's housing), as the synthetic-truth side moves a fixture's parts.
+    moved_faces = np.zeros(len(model.faces), bool)
+    for name, st in states.items():
+        light = model.lights[name]
+        if st.move_to is None or light["type"] not in ("point", "line"):
+            continue
+        mask = _fixture_faces(model, emitting, [light]) & ~moved_faces & ~glow
+        if not mask.any():
+            continue
+        moved_faces |= mask
+        delta = st.move_to - _light_centre(light)
+        _add_moved_fixture(scene, key_of[name], model, mask, delta, albedo, paint, work)
+
+    # Surfaces.
+    if empty:
+        _empty_room(scene, model, paint, work, fittings & ~moved_faces, albedo)
+    else:
+        if moved_faces.any():
+            _remove_from_room(scene, model.faces[moved_faces], work)
+        _texture_scan(scene, model, textured, work)
+
+    for op in inserts:
+        from reroom.edit.furniture import placed_object
+
+        mesh = placed_object(op["object"], op["position"], op["rotation_deg"], op["scale"])
+        why = _inside_room(model, mesh)
+        if why is not None:
+            raise EditError(
+                f"{source}: insert {op['name']!r} ({op['object']}) at {op['position']} is {why}"
+            )
+        path = work / f"insert_{op['name']}.ply"
+        scene[f"{INSERT_PREFIX}{op['name']}"] = {
+            "type": "ply",
+            "filename": _shape_ply(path, np.asarray(mesh.vertices), np.asarray(mesh.faces)),
+            "face_normals": True,
+            "bsdf": _diffuse(op["color"], twosided=True),
+        }
+    return scene
+
+
+def _apply_light(
+    scene: dict[str, Any],
+    key: str,
+    light: dict[str, Any],
+    st: _LightState,
+    model: RoomModel,
+    work: Path,
+) -> None:
+    """Apply one light's folded edits to its entry of the scene dict."""
+    from reroom.render.emitters import portal_emitter
+
+    kind = light["type"]
+    if key not in scene:  # an area light with no faces: nothing to edit
+        return
+    entry = scene[key]
+    gain = st.scale * st.color
+    if kind == "area":
+        path = Path(entry["filename"])
+        mesh = read_ply(path)
+        label = _light_label(model, light)
+        patch_albedo = model.label_albedo(label)
+        if st.move_to is not None:
+            centre = np.asarray(light["geometry"]["centroid"], float)
+            moved = np.asarray(mesh.vertices) + (st.move_to - centre)
+            new_path = work / f"{key}_moved.ply"
+            entry["filename"] = _shape_ply(new_path, moved, np.asarray(mesh.faces))
+            # The scan had the light's faces there: fill the place with its surroundings.
+            scene[f"{key}_patch"] = {
+                "type": "ply",
+                "filename": str(path),
+                "bsdf": _diffuse(patch_albedo),
+            }
+        if st.off:
+            entry.pop("emitter", None)
+            entry["bsdf"] = _diffuse(patch_albedo)
+        else:
+            rad = np.asarray(entry["emitter"]["radiance"]["value"], float) * gain
+            entry["emitter"]["radiance"]["value"] = rad.tolist()
+    elif kind == "window":
+        if st.off:
+            entry.pop("emitter", None)
+            return
+        if st.window is not None:
+            from reroom.invert.basis import CubemapBasis
+            from reroom.invert.export import latlong_from_cubemap
+
+            op = st.window
+            cells, _factor = swap_window_environment(
+                light, op["hdri"], op.get("was"), op.get("scale", 1.0)
+            )
+            n = int(light["distribution"].get("n", 4))
+            env = latlong_from_cubemap(cells, CubemapBasis(n), height=64)
+        else:
+            from reroom.io.images import read_exr
+
+            exr = light.get("environment_exr", f"window_{light['name']}.exr")
+            env = np.maximum(read_exr(model.invert_dir / exr)[..., :3], 0.0)
+        entry["emitter"] = portal_emitter(np.asarray(env * gain, np.float32))
+    elif kind in ("point", "line"):
+        if st.off:
+            del scene[key]
+            return
+        entry["scale"] = float(entry.get("scale", 1.0)) * st.scale
+        entry["color"] = (np.asarray(entry["color"], float) * st.color).tolist()
+        if st.move_to is not None:
+            if kind == "point":
+                entry["position"] = st.move_to.tolist()
+            else:
+                p0, p1 = np.asarray(entry["p0"], float), np.asarray(entry["p1"], float)
+                shift = st.move_to - (p0 + p1) / 2.0
+                entry["p0"], entry["p1"] = (p0 + shift).tolist(), (p1 + shift).tolist()
+
+
+def _light_label(model: RoomModel, light: dict[str, Any]) -> str:
+    """The label around an area light (the cluster its place takes when it is off/moved)."""
+    if model.labels is None:
+        return "ceiling"
+    c = np.asarray(light["geometry"].get("centroid", model.vertices.mean(0)), float)
+    d = np.linalg.norm(model.vertices - c, axis=1)
+    near = (d < np.sort(d)[min(200, len(d) - 1)]) & (model.labels != _OTHER)
+    names = {v: k for k, v in _LABEL_IDS.items()}
+    if not near.any():
+        return "ceiling"
+    vals, counts = np.unique(model.labels[near], return_counts=True)
+    return names.get(int(vals[np.argmax(counts)]), "ceiling")
+
+
+def _added_light(op: dict[str, Any]) -> dict[str, Any]:
+    from reroom.render.emitters import goniometric_light, luminaire_frame
+
+    frame = luminaire_frame(nadir=-np.asarray(op.get("up", [0.0, 0.0, 1.0]), float))
+    if op.get("ies"):
+        from reroom.data import ies_path
+        from reroom.io.ies import read_ies
+
+        profile = read_ies(ies_path(op["ies"]))
+        d = goniometric_light(profile, op["position"], frame=frame, color=op["color"])
+        # ``intensity`` is the profile's peak intensity (its brightest direction), as the
+        # synthetic-truth side reads it (reroom.synth.edits).
+        peak = float(np.asarray(d["intensity"], float).max())
+        if not peak > 0:
+            raise EditError(f"<edits>: IES profile {op['ies']!r} emits no light")
+        d["scale"] = float(op["intensity"]) / peak
+        return d
+    return goniometric_light(
+        1.0, op["position"], frame=frame, color=op["color"], scale=float(op["intensity"])
+    )
+
+
+def _light_centre(light: dict[str, Any]) -> np.ndarray:
+    g = light["geometry"]
+    if light["type"] == "point":
+        return np.asarray(g["position"], float)
+    if light["type"] == "line":
+        return (np.asarray(g["p0"], float) + np.asarray(g["p1"], float)) / 2.0
+    return np.asarray(g.get("centroid", g.get("centre")), float)
+
+
+def _emitting_faces(model: RoomModel) -> np.ndarray:
+    """Scan faces of area lights (the rule of ``model_scene``: two of three vertices)."""
+    emitting = np.zeros(len(model.faces), bool)
+    light_id = _light_ids(model)
+    if light_id is None:
+        return emitting
+    for light in model.doc.get("lights", []):
+        if light["type"] == "area" and "light_index" in light.get("geometry", {}):
+            members = light_id == int(light["geometry"]["light_index"])
+            emitting |= members[model.faces].sum(axis=1) >= 2
+    return emitting
+
+
+def _remove_from_room(scene: dict[str, Any], faces: np.ndarray, work: Path) -> None:
+    """Rewrite the scan-mesh shape ``room`` without the given faces (vertex triples)."""
+    room = read_ply(scene["room"]["filename"])
+    rf = np.ascontiguousarray(np.asarray(room.faces, np.int64))
+    drop = np.ascontiguousarray(np.asarray(faces, np.int64))
+    row = np.dtype((np.void, rf.dtype.itemsize * 3))
+    keep = ~np.isin(rf.view(row).ravel(), drop.view(row).ravel())
+    path = work / "room_moved.ply"
+    write_triangle_ply(
+        path,
+        np.asarray(room.vertices),
+        rf[keep],
+        {"albedo": np.asarray(room.vertex_attributes["albedo"], np.float32)},
+    )
+    scene["room"]["filename"] = str(path)
+
+
+def _add_moved_fixture(
+    scene: dict[str, Any],
+    key: str,
+    model: RoomModel,
+    mask: np.ndarray,
+    delta: np.ndarray,
+    albedo: np.ndarray,
+    paint: dict[str, dict[str, Any]],
+    work: Path,
+) -> None:
+    """The fitting's faces, moved by ``delta``; a ceiling patch where it was mounted."""
+    faces = model.faces[mask]
+    used = np.unique(faces)
+    remap = np.full(len(model.vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    ok = np.all(albedo >= 0, axis=1)[:, None]
+    alb = np.where(ok, albedo, model.label_albedo("wall"))[used]
+    verts = model.vertices[used]
+    scene[f"{key}_fixture"] = {
+        "type": "ply",
+        "filename": _shape_ply(
+            work / f"{key}_fixture.ply",
+            verts + delta,
+            remap[faces],
+            albedo=np.clip(alb, 0.0, 0.95).astype(np.float32),
+        ),
+        "bsdf": {
+            "type": "twosided",
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {"type": "mesh_attribute", "name": "vertex_albedo_color"},
+            },
+        },
+    }
+    # A fitting mounted on the ceiling (a tube's housing) hid the ceiling behind it, which
+    # the scan never saw: close that hole with the ceiling's paint.
+    a = model.to_aligned(verts)
+    for _poly, _zf, zc, _name in model.rooms():
+        if abs(a[:, 2].max() - zc) > 0.05:
+            continue
+        lo, hi = a[:, :2].min(0) - 0.01, a[:, :2].max(0) + 0.01
+        z = zc - 0.001
+        quad = np.array(
+            [[lo[0], lo[1], z], [hi[0], lo[1], z], [hi[0], hi[1], z], [lo[0], hi[1], z]]
+        )
+        op = paint.get("ceiling")
+        rgb = op["color"] if op is not None and "color" in op else model.label_albedo("ceiling")
+        scene[f"{key}_fixture_patch"] = {
+            "type": "ply",
+            "filename": _shape_ply(
+                work / f"{key}_fixture_patch.ply",
+                model.to_mesh(quad),
+                np.array([[0, 2, 1], [0, 3, 2]]),  # facing down, into the room
+            ),
+            "bsdf": _diffuse(rgb, twosided=True),
+        }
+        break
+
+
+def _empty_room(
+    scene: dict[str, Any],
+    model: RoomModel,
+    paint: dict[str, dict[str, Any]],
+    work: Path,
+    fixtures: np.ndarray,
+    albedo: np.ndarray,
+) -> None:
+    """Replace the scan mesh by the layout's empty shell plus the ``fixtures`` faces
+    (light fittings, with per-vertex ``albedo``)."""
+    from reroom.layout.emptyroom import empty_room_mesh
+
+    assert model.layout is not None
+    shell, face_label = empty_room_mesh(model.layout, in_scan_frame=True)
+    sv, sf = np.asarray(shell.vertices, float), np.asarray(shell.faces)
+    face_label = np.asarray(face_label, np.int64)
+    keep = face_label != _PORTAL_PANE
+    # The pane of each window lies on the recovered window rectangle: the portal replaces it.
+    centres = shell.triangles_center
+    normals = shell.face_normals
+    for light in model.doc.get("lights", []):
+        if light["type"] != "window":
+            continue
+        g = light["geometry"]
+        c, hu, hv = (np.asarray(g[k], float) for k in ("centre", "half_u", "half_v"))
+        n = np.asarray(g["normal"], float)
+        rel = centres - c
+        on_plane = np.abs(rel @ n) < 0.03
+        parallel = np.abs(normals @ n) > 0.9
+        within = (np.abs(rel @ hu) <= (hu @ hu) + 0.05 * np.linalg.norm(hu)) & (
+            np.abs(rel @ hv) <= (hv @ hv) + 0.05 * np.linalg.norm(hv)
+        )
+        keep &= ~(on_plane & parallel & within & (face_label == _LABEL_IDS["window"]))
+    del scene["room"]
+    names = {v: k for k, v in _LABEL_IDS.items()}
+    for lab in np.unique(face_label[keep]):
+        label = names.get(int(lab), "wall")
+        sel = keep & (face_label == lab)
+        # Reveals of windows take the wall's paint and albedo.
+        target = "wall" if label == "window" else label
+        op = paint.get(target)
+        if op is not None and "texture" in op:
+            scene[f"room_{label}"] = _textured_shape(
+                work / f"room_{label}.ply", sv, sf[sel], op["texture"], op["metres_per_tile"]
+            )
+            continue
+        rgb = op["color"] if op is not None else model.label_albedo(target)
+        scene[f"room_{label}"] = {
+            "type": "ply",
+            "filename": _shape_ply(work / f"room_{label}.ply", sv, sf[sel]),
+            "face_normals": True,
+            "bsdf": _diffuse(rgb, twosided=True),
+        }
+    if fixtures.any():
+        ok = np.all(albedo >= 0, axis=1)[:, None]
+        alb = np.where(ok, albedo, model.label_albedo("wall"))
+        scene["fixtures"] = {
+            "type": "ply",
+            "filename": _shape_ply(
+                work / "fixtures.ply",
+                model.vertices,
+                model.faces[fixtures],
+                albedo=np.clip(alb, 0.0, 0.95).astype(np.float32),
+            ),
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {"type": "mesh_attribute", "name": "vertex_albedo_color"},
+            },
+        }
+
+
+def _light_ids(model: RoomModel) -> np.ndarray | None:
+    path = model.lights_dir / "lights_vertices.npz"
+    if not path.is_file():
+        return None
+    with np.load(path) as z:
+        return np.asarray(z["light_id"])
+
+
+def _texture_scan(
+    scene: dict[str, Any], model: RoomModel, textured: dict[str, dict[str, Any]], work: Path
+) -> None:
+    """Move the faces of textured repaint targets out of the scan mesh into textured shapes."""
+    if not textured:
+        return
+    if model.labels is None:
+        raise EditError(f"<edits>: texture repaints need {model.layout_dir / 'layout_labels.ply'}")
+    room = read_ply(scene["room"]["filename"])
+    faces = np.asarray(room.faces)
+    flab = _face_labels(model.labels, faces)
+    rest = np.ones(len(faces), bool)
+    for target, op in textured.items():
+        sel = flab == _LABEL_IDS.get(target, -1)
+        if not sel.any():
+            continue
+        rest &= ~sel
+        scene[f"paint_{target}"] = _textured_shape(
+            work / f"paint_{target}.ply",
+            np.asarray(room.vertices),
+            faces[sel],
+            op["texture"],
+            op["metres_per_tile"],
+        )
+    path = work / "room_rest.ply"
+    write_triangle_ply(
+        path,
+        np.asarray(room.vertices),
+        faces[rest],
+        {"albedo": np.asarray(room.vertex_attributes["albedo"], np.float32)},
+    )
+    scene["room"]["filename"] = str(path)

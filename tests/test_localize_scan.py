@@ -1,0 +1,167 @@
+"""Room-scale light localization (``reroom.localize.scan``) on a small synthetic room.
+
+The room is a 4 x 3 x 2.5 m box lit by two isotropic point lights; its radiance is a
+radiosity solution (direct light plus bounces gathered by the same hemisphere rays the
+estimator uses, with other seeds), so the answer is known: the lights' positions and
+the three albedos.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.errors import ReroomError
+from reroom.invert.transfer import hemisphere_transfer
+from reroom.io.mesh import write_ply
+from reroom.lights.lightset import Light, LightSet, load_lights, write_lights
+from reroom.localize.measurements import shading_matrix
+from reroom.localize.scan import (
+    LOCALIZED_REASON,
+    ScanLocalizeOptions,
+    ScanLocalizeResult,
+    localize_into_lights,
+    localize_scan,
+    merge_localized_lights,
+)
+from reroom.rays import RayCaster
+
+SIZE = np.array([4.0, 3.0, 2.5])
+LIGHTS = np.array([[1.1, 0.9, 1.9], [2.9, 2.0, 1.2]])
+POWER = np.array([2.0, 1.5])
+ALBEDO = {0: 0.6, 1: 0.3, 2: 0.8}  # wall, floor, ceiling
+
+
+def _face_grid(axis: int, side: float, step: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Grid vertices and triangles of one inner face of the box, wound to face inwards."""
+    others = [c for c in range(3) if c != axis]
+    na, nb = (int(round(SIZE[c] / step)) + 1 for c in others)
+    a, b = np.meshgrid(
+        np.linspace(0, SIZE[others[0]], na), np.linspace(0, SIZE[others[1]], nb), indexing="ij"
+    )
+    v = np.zeros((na * nb, 3))
+    v[:, axis] = side
+    v[:, others[0]], v[:, others[1]] = a.ravel(), b.ravel()
+    idx = np.arange(na * nb).reshape(na, nb)
+    q = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+    f = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    inward = np.zeros(3)
+    inward[axis] = 1.0 if side == 0 else -1.0
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    if float(n[0] @ inward) < 0:
+        f = f[:, ::-1]
+    label = 0 if axis < 2 else (1 if side == 0 else 2)
+    return v, f, label
+
+
+def make_room_scan(root: Path, step: float = 0.25, bounces: int = 5) -> Path:
+    """Write ``hdr/hdr_mesh.ply``, ``layout/layout_labels.ply`` and ``layout/layout.json``."""
+    verts, faces, labels = [], [], []
+    off = 0
+    for axis in range(3):
+        for side in (0.0, SIZE[axis]):
+            v, f, lab = _face_grid(axis, side, step)
+            verts.append(v)
+            faces.append(f + off)
+            labels.append(np.full(len(v), lab))
+            off += len(v)
+    v, f, lab = np.concatenate(verts), np.concatenate(faces), np.concatenate(labels)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    normals = np.zeros_like(v)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    for k in range(3):
+        np.add.at(normals, f[:, k], fn)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    rho = np.array([ALBEDO[int(c)] for c in lab])
+    caster = RayCaster(mesh)
+    vis = caster.visibility_matrix(v, normals, LIGHTS)
+    direct = shading_matrix(v, normals, LIGHTS, vis) @ POWER
+    radiance = rho / np.pi * direct
+    everything, no_light = np.ones(len(v), bool), np.full(len(v), -1)
+    for b in range(bounces):
+        rad3 = np.repeat(radiance[:, None], 3, axis=1)
+        hemi = hemisphere_transfer(
+            caster, mesh, np.arange(len(v)), normals, rad3, everything, no_light, [], None,
+            rays_per_vertex=256, seed=1000 + b,
+        )  # fmt: skip
+        radiance = rho / np.pi * (hemi.indirect[:, 0] + direct)
+    (root / "hdr").mkdir(parents=True)
+    (root / "layout").mkdir()
+    write_ply(root / "hdr" / "hdr_mesh.ply", mesh,
+              {"radiance": np.repeat(radiance[:, None], 3, axis=1), "observed": everything.astype(np.uint8)})  # fmt: skip
+    write_ply(root / "layout" / "layout_labels.ply", mesh, {"label": lab.astype(np.uint8)})
+    layout = {
+        "rotation": np.eye(3).tolist(),
+        "rooms": [{"name": "room0", "polygon": [[0, 0], [4, 0], [4, 3], [0, 3]],
+                   "floor_z": 0.0, "ceiling_z": 2.5}],
+    }  # fmt: skip
+    (root / "layout" / "layout.json").write_text(json.dumps(layout))
+    return root
+
+
+@pytest.fixture(scope="module")
+def room_scan(tmp_path_factory) -> Path:
+    return make_room_scan(tmp_path_factory.mktemp("localize_scan") / "scan")
+
+
+@pytest.fixture(scope="module")
+def localized(room_scan: Path) -> tuple[ScanLocalizeResult, dict]:
+    return localize_scan(room_scan, ScanLocalizeOptions(rays_per_vertex=128, time_limit=120))
+
+
+def test_finds_both_lights_within_five_percent(localized):
+    res, info = localized
+    size = float(np.linalg.norm(SIZE))
+    assert len(res.positions) == 2, info
+    d = np.linalg.norm(LIGHTS[:, None] - res.positions[None], axis=-1)
+    assert d.min(axis=1).max() < 0.05 * size, res.positions
+    # Intensities come out in pi * radiance / albedo units: here the true ones.
+    order = d.argmin(axis=1)
+    np.testing.assert_allclose(res.intensities[order], POWER, rtol=0.2)
+
+
+def test_albedos_recovered(localized):
+    res, _ = localized
+    for c, name in ((0, "wall"), (2, "ceiling"), (1, "floor")):
+        assert abs(res.albedo[name] - ALBEDO[c]) < 0.1 * ALBEDO[c], res.albedo
+
+
+def test_isotropic_lights_stay_isotropic(localized):
+    res, _ = localized
+    assert all(g is None for g in res.goniometric), res.goniometric
+
+
+def test_missing_stage_output_is_named(tmp_path: Path):
+    with pytest.raises(ReroomError, match="hdr_mesh.ply"):
+        localize_scan(tmp_path)
+
+
+def _point(name: str, pos, source: str) -> Light:
+    return Light(name, "point", source, {"position": list(pos), "axis": [0, 0, 1]}, {}, "test")
+
+
+def test_merge_replaces_detected_and_keeps_user_lights(localized, room_scan: Path, tmp_path: Path):
+    res, info = localized
+    near = res.positions[0] + [0.1, 0.0, -0.1]
+    far = [0.3, 2.7, 0.4]
+    lights = LightSet(
+        lights=[_point("point0", near, "detected"), _point("mine", far, "user")],
+        vertex_light_id=np.full(3, -1, np.int32),
+    )
+    write_lights(lights, tmp_path / "lights")
+    path, done = localize_into_lights(room_scan, res, info, tmp_path / "lights")
+    back = load_lights(path)
+    names = [x.name for x in back.lights]
+    assert names[:2] == ["point0", "mine"] and len(names) == 3, names
+    assert back.lights[0].source == "localize" and back.lights[0].reason == LOCALIZED_REASON
+    np.testing.assert_allclose(back.lights[0].anchor(), res.positions[0], atol=1e-5)
+    assert back.lights[1].source == "user" and back.lights[1].anchor().tolist() == far
+    assert back.lights[2].type == "point" and back.lights[2].reason == LOCALIZED_REASON
+    assert len(done) == 2
+    # Merging again replaces the localized lights in place instead of adding more.
+    merge_localized_lights(back, res, info)
+    assert [x.name for x in back.lights] == names
