@@ -53,7 +53,8 @@ def encode_response(linear: np.ndarray, lut: np.ndarray) -> np.ndarray:
     return pick.astype(np.uint8)
 
 
-def _exposures(scan_dir: Path, meta: dict | None) -> tuple[dict[str, Any], np.ndarray]:
+def load_exposures(scan_dir: Path, meta: dict | None) -> tuple[dict[str, Any], np.ndarray]:
+    """``hdr/exposures.json`` of a scan and the response LUT it names (errors name the file)."""
     from reroom.hdr.linearize import response_lut
 
     path = scan_dir / "hdr" / "exposures.json"
@@ -232,7 +233,7 @@ def render_edit(
     out = Path(out_dir)
     ops, _ = as_ops(edits)
     scan = load_scan(scan_dir, check_images=False)
-    exposures, lut = _exposures(scan_dir, scan.meta)
+    exposures, lut = load_exposures(scan_dir, scan.meta)
     views = _views(scan, exposures, frames, cameras, exposure, resolution_scale)
     t0 = time.perf_counter()
     if scene is None:
@@ -406,7 +407,7 @@ def composite_insertion(
         raise EditError(
             f"{scan_dir}: frame {frame} does not exist (the scan has {len(scan.frames)} frames)"
         )
-    exposures, lut = _exposures(scan_dir, scan.meta)
+    exposures, lut = load_exposures(scan_dir, scan.meta)
     fr = scan.frames[int(frame)]
     t = _frame_scale(exposures, int(frame))
     if t is None:

@@ -11,7 +11,6 @@ L1 has a floor well above zero; the ratio of means does not.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +55,7 @@ def rerender_inputs(
         medians.
     """
     from reroom.edit.apply import edited_scene
-    from reroom.hdr.linearize import response_lut
+    from reroom.edit.render_edits import load_exposures
     from reroom.render.frames import FrameRenderer
     from reroom.scan import load_scan
 
@@ -64,14 +63,7 @@ def rerender_inputs(
     inv = Path(invert_dir) if invert_dir is not None else scan_dir / "invert"
     out = Path(out_dir) if out_dir is not None else inv
     scan = load_scan(scan_dir)
-    exp_path = scan_dir / "hdr" / "exposures.json"
-    try:
-        exposures = json.loads(exp_path.read_text())
-    except OSError as exc:
-        raise ScanError(exp_path, "is missing: run `reroom hdr SCAN` first") from exc
-    except ValueError as exc:
-        raise ScanError(exp_path, f"is not valid JSON ({exc})") from exc
-    lut = response_lut(exposures.get("response", "auto"), scan.meta)
+    exposures, lut = load_exposures(scan_dir, scan.meta)
     # The unedited model exactly as the edits render it (fittings, glowing surfaces).
     scene = edited_scene(
         scan_dir, [], invert_dir=inv, lights_dir=lights_dir, work_dir=out / "model_meshes"
@@ -82,7 +74,9 @@ def rerender_inputs(
         if f.get("scale") is not None and j < len(scan.frames)
     ]
     if not usable:
-        raise ScanError(exp_path, "gives no frame an exposure: nothing to render at")
+        raise ScanError(
+            scan_dir / "hdr" / "exposures.json", "gives no frame an exposure: nothing to render at"
+        )
     pick = [usable[int(i)] for i in np.linspace(0, len(usable) - 1, min(frames, len(usable)))]
     renderer: FrameRenderer | None = None
     rows, per_frame = [], []

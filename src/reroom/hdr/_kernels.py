@@ -320,6 +320,8 @@ def reproject_medians(
     decode: np.ndarray,
     confidence: np.ndarray,
     inv_scale: np.ndarray,
+    prior: np.ndarray,
+    level_linear: np.ndarray,
     out: np.ndarray,
     count: np.ndarray,
 ) -> None:
@@ -327,12 +329,20 @@ def reproject_medians(
 
     Sample ``order[k]`` for ``offsets[i] <= k < offsets[i+1]`` belongs to vertex
     ``i``; its linear value is ``decode[codes[...]]`` and its weight in channel
-    ``c`` is ``confidence[levels[..., c]] * geometry`` (eq. 3.4). Samples of frames
-    whose ``inv_scale`` is not finite are skipped, and samples with an edge flag
-    (bits 1 | 2 of ``flags``) are used only by vertices without any other.
-    Vertices without samples keep ``out = 0`` and ``count = 0``.
+    ``c`` is ``confidence[level] * geometry`` (eq. 3.4). Samples of frames whose
+    ``inv_scale`` is not finite are skipped, and samples with an edge flag (bits
+    1 | 2 of ``flags``) are used only by vertices without any other. Vertices without
+    samples keep ``out = 0`` and ``count = 0``.
+
+    With an empty ``prior`` (shape ``(0, 3)``), ``level`` is the sample's own 8-bit
+    level (the thesis). Otherwise it is the level that ``prior[i, c] / inv_scale``
+    gives through the response ``level_linear``, and a clipped sample (level 255) is
+    censored (+inf in the median); a vertex whose median is then +inf keeps the
+    ``out`` it came with (the first pass's).
     """
     n = offsets.shape[0] - 1
+    predicted = prior.shape[0] > 0
+    top = confidence.shape[0] - 1
     for i in nb.prange(n):
         s, e = offsets[i], offsets[i + 1]
         m_all = 0
@@ -358,85 +368,19 @@ def reproject_medians(
                 if not np.isfinite(inv_scale[j, 0]) or (only_clean and (flags[smp] & 3) != 0):
                     continue
                 vals[q] = decode[codes[smp, c]] * inv_scale[j, c]
-                wts[q] = confidence[levels[smp, c]] * geometry[smp]
+                level = levels[smp, c]
+                if predicted:
+                    if level >= top:
+                        vals[q] = np.inf
+                    level = np.searchsorted(level_linear, prior[i, c] / inv_scale[j, c])
+                    level = min(max(level, 0), top)
+                wts[q] = confidence[level] * geometry[smp]
                 q += 1
             idx = np.argsort(vals)
             total = wts.sum()
             half = 0.5 * total
             acc = 0.0
             res = vals[idx[m - 1]]
-            if total > 0.0:
-                for k in idx:
-                    acc += wts[k]
-                    if acc >= half:
-                        res = vals[k]
-                        break
-            out[i, c] = res
-
-
-@nb.njit(parallel=True, cache=True)
-def reproject_medians_predicted(
-    offsets: np.ndarray,
-    order: np.ndarray,
-    frames: np.ndarray,
-    levels: np.ndarray,
-    codes: np.ndarray,
-    geometry: np.ndarray,
-    flags: np.ndarray,
-    decode: np.ndarray,
-    confidence: np.ndarray,
-    inv_scale: np.ndarray,
-    prior: np.ndarray,
-    level_linear: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """Weighted medians as :func:`reproject_medians`, weights from *predicted* levels.
-
-    The hat weight of a sample is that of the 8-bit level the vertex's ``prior``
-    radiance would give in that frame (``prior * scale`` through the response
-    ``level_linear``), not of the sample's own noisy level -- so noise cannot choose
-    which samples count. A clipped sample (level 255) is censored: it only says
-    "brighter than this", and enters the median as +inf. Only vertices whose median
-    is finite are overwritten in ``out`` (``out`` holds the first-pass result).
-    """
-    n = offsets.shape[0] - 1
-    top = level_linear.shape[0] - 1
-    for i in nb.prange(n):
-        s, e = offsets[i], offsets[i + 1]
-        m_all = 0
-        m_clean = 0
-        for k in range(s, e):
-            smp = order[k]
-            if np.isfinite(inv_scale[frames[smp], 0]):
-                m_all += 1
-                if (flags[smp] & 3) == 0:
-                    m_clean += 1
-        only_clean = m_clean > 0
-        m = m_clean if only_clean else m_all
-        if m == 0:
-            continue
-        vals = np.empty(m)
-        wts = np.empty(m)
-        for c in range(3):
-            q = 0
-            for k in range(s, e):
-                smp = order[k]
-                j = frames[smp]
-                if not np.isfinite(inv_scale[j, 0]) or (only_clean and (flags[smp] & 3) != 0):
-                    continue
-                if levels[smp, c] >= top:
-                    vals[q] = np.inf
-                else:
-                    vals[q] = decode[codes[smp, c]] * inv_scale[j, c]
-                lvl = np.searchsorted(level_linear, prior[i, c] / inv_scale[j, c])
-                lvl = min(max(lvl, 0), top)
-                wts[q] = confidence[lvl] * geometry[smp]
-                q += 1
-            idx = np.argsort(vals)
-            total = wts.sum()
-            half = 0.5 * total
-            acc = 0.0
-            res = np.inf
             if total > 0.0:
                 for k in idx:
                     acc += wts[k]

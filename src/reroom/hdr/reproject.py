@@ -116,25 +116,12 @@ def reproject_radiance(
     inv[good] = 1.0 / s[good]
     out = np.zeros((obs.n_vertices, 3))
     count = np.zeros(obs.n_vertices, np.int64)
-    K.reproject_medians(
-        groups.offsets,
-        groups.order,
-        obs.frame,
-        obs.value,
-        obs.linear,
-        obs.geometry,
-        obs.flags,
-        decode_linear(np.arange(65536)),
-        _confidence_lut(),
-        inv,
-        out,
-        count,
-    )
-    if level_linear is not None:
-        lut = np.asarray(level_linear, np.float64)
-        if lut.shape != (256,) or np.any(np.diff(lut) < 0):
-            raise ValueError("level_linear must be 256 non-decreasing linear values")
-        K.reproject_medians_predicted(
+    decode = decode_linear(np.arange(65536))
+    conf = _confidence_lut()
+    no_prior = np.zeros((0, 3))
+
+    def medians(prior: np.ndarray, lut: np.ndarray) -> None:
+        K.reproject_medians(
             groups.offsets,
             groups.order,
             obs.frame,
@@ -142,13 +129,21 @@ def reproject_radiance(
             obs.linear,
             obs.geometry,
             obs.flags,
-            decode_linear(np.arange(65536)),
-            _confidence_lut(),
+            decode,
+            conf,
             inv,
-            out.copy(),
+            prior,
             lut,
             out,
+            count,
         )
+
+    medians(no_prior, np.zeros(256))
+    if level_linear is not None:
+        lut = np.asarray(level_linear, np.float64)
+        if lut.shape != (256,) or np.any(np.diff(lut) < 0):
+            raise ValueError("level_linear must be 256 non-decreasing linear values")
+        medians(out.copy(), lut)
     return Radiance(out, count > 0, count)
 
 
