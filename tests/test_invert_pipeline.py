@@ -88,3 +88,17 @@ def test_unobserved_cluster_is_reported_and_marked_partial(tmp_path: Path) -> No
     scene = json.loads((scan / "invert" / "scene.json").read_text())
     assert scene["complete"] is False
     assert scene["materials"][2] == {"name": "ceiling", "albedo": None, "solved": False}
+
+
+def test_fill_poorly_seen_bins():
+    from reroom.invert.export import fill_poorly_seen
+
+    profile = np.array([1.0, 2.0, 50.0, 4.0, 7.0, 9.0])
+    support = np.array([10.0, 10.0, 0.01, 10.0, 0.0, 10.0])
+    out = fill_poorly_seen(profile, support, 0.01)
+    # bin 2: seen by almost nothing -> between its well-seen neighbours; bin 4: unseen -> 0
+    np.testing.assert_allclose(out, [1.0, 2.0, 3.0, 4.0, 0.0, 9.0])
+    np.testing.assert_allclose(fill_poorly_seen(profile, np.full(6, 1.0), 0.01), profile)
+    np.testing.assert_allclose(fill_poorly_seen(profile, np.zeros(6), 0.01), profile)
+    with pytest.raises(ValueError, match="differ"):
+        fill_poorly_seen(profile, support[:3], 0.01)

@@ -175,7 +175,41 @@ def _window_area(g: dict) -> float:
     return float(4 * np.linalg.norm(np.asarray(g["half_u"], float)) * np.linalg.norm(g["half_v"]))
 
 
-def light_entries(result, out: Path | None) -> list[dict[str, Any]]:
+def fill_poorly_seen(profile: np.ndarray, support: np.ndarray, min_fraction: float) -> np.ndarray:
+    """A profile whose poorly seen bins are interpolated from the well-seen ones.
+
+    Parameters
+    ----------
+    profile:
+        ``(B,)`` solved values per bin.
+    support:
+        ``(B,)`` summed transfer of each bin over the receivers (how much data it had).
+    min_fraction:
+        Bins with ``0 < support < min_fraction * max(support)`` are poorly seen: they
+        get the linear interpolation (in bin index) of the nearest well-seen bins on
+        either side, or the nearest one's value beyond the last well-seen bin. Bins no
+        receiver sees at all (support 0: hidden by the light's own fitting, such as a
+        shade's sides or above a recessed downlight) are 0 -- what the room receives
+        from those directions, which is what the distribution describes.
+
+    Returns
+    -------
+    ``(B,)`` profile; ``profile`` itself (a copy) when no bin is well seen.
+    """
+    profile = np.asarray(profile, np.float64)
+    support = np.asarray(support, np.float64)
+    if support.shape != profile.shape:
+        raise ValueError(f"support {support.shape} and profile {profile.shape} differ")
+    top = float(support.max()) if support.size else 0.0
+    well = support >= min_fraction * top
+    if top <= 0 or not well.any():
+        return profile.copy()
+    idx = np.arange(len(profile))
+    filled = np.where(well, profile, np.interp(idx, idx[well], profile[well]))
+    return np.where(support > 1e-12 * top, filled, 0.0)
+
+
+def light_entries(result, out: Path | None, min_bin_support: float = 0.01) -> list[dict[str, Any]]:
     """The ``lights`` list of ``scene.json`` (and the files it references, if ``out``)."""
     entries = []
     basis = CubemapBasis(result.cubemap_n)
@@ -201,17 +235,29 @@ def light_entries(result, out: Path | None) -> list[dict[str, Any]]:
                 write_exr(out / f"window_{block.name}.exr", ll)
                 e["environment_exr"] = f"window_{block.name}.exr"
         else:
-            profile = result.solve.profiles[block.name]
+            solved = np.asarray(result.solve.profiles[block.name], np.float64)
+            support = info.get("support")
+            profile = (
+                solved
+                if support is None
+                else fill_poorly_seen(solved, np.asarray(support), min_bin_support)
+            )
             color = result.solve.colors[block.name]
             e["color"] = color.tolist()
             e["distribution"] = {
                 "basis": "inclination",
                 "bins": len(profile),
                 "profile": profile.tolist(),
+                "profile_solved": solved.tolist(),
                 "theta": "from the axis"
                 if block.kind == "point"
                 else "around the line from d_perp",
             }
+            if support is not None:
+                e["distribution"]["support"] = [float(x) for x in support]
+                e["distribution"]["well_seen"] = [
+                    bool(x >= min_bin_support * max(support)) for x in support
+                ]
             if block.kind == "point":
                 e["power"] = (inclination_power(profile) * color).tolist()
             else:
@@ -240,7 +286,7 @@ def write_outputs(
         "light": flags["light"].astype(np.uint8),
     }
     write_ply(out / "albedo.ply", trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), attrs)
-    lights = light_entries(result, out)
+    lights = light_entries(result, out, float(meta.get("options", {}).get("min_bin_support", 0.01)))
     solve = result.solve
     pics = []
     if pictures:

@@ -70,6 +70,19 @@ class InvertOptions:
     fixture_margin : float
         Metres: vertices this close to a line light (beyond its radius) or to a point
         light are its glowing fixture, left out of the indirect light.
+    receiver_inset : float
+        Compute every transfer at a point moved into the receiver's own surface by up
+        to this fraction of its mean edge length (:func:`reroom.invert.transfer.
+        inset_points`), away from seams where shadow rays start in the plane of the
+        neighbouring surface. Off (0) by default: measured worse (docs/invert.md).
+    min_bin_support : float
+        A point or line light's bin whose summed transfer over the clustered receivers
+        is below this fraction of its best-seen bin's is *poorly seen*: its solved value
+        rests on a handful of grazing receivers (a tube's bin straight up, seen only by
+        two end-wall vertices, solved to 13x the others). ``scene.json`` keeps the
+        solved profile as ``profile_solved`` and gives in ``profile`` (used for power,
+        IES files, pictures and rendering) those bins interpolated from the well-seen
+        ones.
     seed : int
         Seed of the ray sampling and of the solve's vertex subset.
     solve : SolveOptions
@@ -86,6 +99,7 @@ class InvertOptions:
     area_samples: int = DEFAULT_AREA_SAMPLES
     fixture_margin: float = 0.05
     receiver_inset: float = 0.0
+    min_bin_support: float = 0.01
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
     pictures: bool = True
@@ -379,6 +393,14 @@ def run_invert(
     )
     result = solve_lighting(problem, options.solve, progress)
     timings["solve"] = time.perf_counter() - t
+    # How much data each basis element had: the summed transfer over the clustered
+    # receivers (green). Point and line bins that almost no receiver sees are barely
+    # constrained by the solve; export fills them from their well-seen neighbours.
+    support = np.asarray(abs(transfer[rows]).sum(axis=0)).ravel()
+    start = 0
+    for block, entry in zip(blocks, info, strict=True):
+        entry["support"] = support[start : start + block.size].tolist()
+        start += block.size
 
     # ------------------------------------------------------------------ per vertex
     t = time.perf_counter()
