@@ -184,6 +184,28 @@ def _fixture_vertices(points: np.ndarray, lights: list, margin: float) -> np.nda
     return near
 
 
+def emitter_surfaces(
+    light_list: list, vertex_light_id: np.ndarray, n_vertices: int
+) -> tuple[list, list, np.ndarray, np.ndarray]:
+    """The area lights and windows of a light list, and which vertices are their surfaces.
+
+    Returns ``(areas, windows, area_of, window_of)``: the area lights and the windows in
+    list order, and per vertex the index of the area light (window) whose surface it
+    is, -1 elsewhere -- the classes :func:`reroom.invert.transfer.hemisphere_transfer`
+    takes.
+    """
+    ids = np.asarray(vertex_light_id)
+    areas = [x for x in light_list if x.type == "area"]
+    wins = [x for x in light_list if x.type == "window"]
+    area_of = np.full(n_vertices, -1, np.int64)
+    window_of = np.full(n_vertices, -1, np.int64)
+    for k, light in enumerate(areas):
+        area_of[ids == light_list.index(light)] = k
+    for k, light in enumerate(wins):
+        window_of[ids == light_list.index(light)] = k
+    return areas, wins, area_of, window_of
+
+
 def run_invert(
     scan_dir: str | Path,
     out_dir: str | Path | None = None,
@@ -253,14 +275,7 @@ def run_invert(
         if lightset is not None and len(lightset.vertex_light_id)
         else np.full(nv, -1, np.int32)
     )
-    areas = [x for x in light_list if x.type == "area"]
-    wins = [x for x in light_list if x.type == "window"]
-    area_of = np.full(nv, -1, np.int64)
-    window_of = np.full(nv, -1, np.int64)
-    for k, light in enumerate(areas):
-        area_of[ids == light_list.index(light)] = k
-    for k, light in enumerate(wins):
-        window_of[ids == light_list.index(light)] = k
+    areas, wins, area_of, window_of = emitter_surfaces(light_list, ids, nv)
     openings = [
         WindowOpening(
             w.name,

@@ -247,6 +247,7 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
     from reroom.invert.area import area_light_transfer
     from reroom.invert.basis import CubemapBasis, InclinationBasis
     from reroom.invert.direct import line_light_transfer
+    from reroom.invert.pipeline import emitter_surfaces
     from reroom.invert.transfer import hemisphere_transfer
     from reroom.invert.windows import WindowOpening
     from reroom.io.mesh import read_ply
@@ -291,15 +292,8 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
             )
     else:
         notes.append(f"{lights_path} missing: area lights, windows and tubes are not modelled")
-    areas = [x for x in light_list if x.type == "area"]
-    wins = [x for x in light_list if x.type == "window"]
+    areas, wins, area_of, win_of = emitter_surfaces(light_list, ids, nv)
     lines = [x for x in light_list if x.type == "line"]
-    area_of = np.full(nv, -1, np.int64)
-    win_of = np.full(nv, -1, np.int64)
-    for k, light in enumerate(areas):
-        area_of[ids == light_list.index(light)] = k
-    for k, light in enumerate(wins):
-        win_of[ids == light_list.index(light)] = k
     # A tube's glowing surface is modelled by its line light: not indirect light.
     fixture = np.zeros(nv, bool)
     for light in lines:
