@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from meshes import grid_plane
 
 from reroom.errors import ReroomError
 from reroom.hdr.observe import vertex_normals
@@ -20,21 +21,6 @@ from reroom.invert import (
 from reroom.rays import RayCaster
 
 # -- helpers ---------------------------------------------------------------------------------
-
-
-def grid_plane(half: float, step: float, z: float = 0.0, up: bool = True) -> trimesh.Trimesh:
-    """A square grid mesh on the plane ``z``, facing +Z (or -Z)."""
-    xs = np.arange(-half, half + step / 2, step)
-    n = len(xs)
-    gx, gy = np.meshgrid(xs, xs, indexing="ij")
-    v = np.stack([gx.ravel(), gy.ravel(), np.full(n * n, z)], axis=1)
-    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
-    a = (i * n + j).ravel()
-    f = np.concatenate([np.stack([a, a + n, a + n + 1], 1), np.stack([a, a + n + 1, a + 1], 1)])
-    mesh = trimesh.Trimesh(v, f, process=False)
-    if not up:
-        mesh.invert()
-    return mesh
 
 
 def rect_form_factor(a: float, b: float, h: float) -> float:
@@ -58,6 +44,24 @@ def unit_rows(a: np.ndarray) -> np.ndarray:
 
 
 # -- bases ------------------------------------------------------------------------------------
+
+
+def _area_only_transfer(mesh, recv, area_of, rays: int, seed: int):
+    """Hemisphere transfer of ``recv`` in a scene lit only by area lights (``area_of``)."""
+    nv = len(mesh.vertices)
+    return hemisphere_transfer(
+        RayCaster(mesh),
+        mesh,
+        recv,
+        vertex_normals(mesh),
+        np.zeros((nv, 3)),
+        np.ones(nv, bool),
+        area_of,
+        [],
+        None,
+        rays_per_vertex=rays,
+        seed=seed,
+    )
 
 
 def test_cubemap_solid_angles_cells_and_adjacency():
@@ -254,19 +258,7 @@ def test_area_light_form_factor_square():
     area_of = np.full(nv, -1)
     area_of[len(floor.vertices) :] = 0
     recv = _receivers(mesh, 1.0)
-    tr = hemisphere_transfer(
-        RayCaster(mesh),
-        mesh,
-        recv,
-        vertex_normals(mesh),
-        np.zeros((nv, 3)),
-        np.ones(nv, bool),
-        area_of,
-        [],
-        None,
-        rays_per_vertex=1024,
-        seed=3,
-    )
+    tr = _area_only_transfer(mesh, recv, area_of, 1024, seed=3)
     x, y = mesh.vertices[recv, 0], mesh.vertices[recv, 1]
     expected = np.pi * np.array(
         [rect_ff_offset(-a - xi, a - xi, -a - yi, a - yi, h) for xi, yi in zip(x, y, strict=True)]
@@ -290,19 +282,7 @@ def test_area_light_form_factor_disc():
     area_of = np.full(nv, -1)
     area_of[len(floor.vertices) :] = 0
     recv = np.flatnonzero(np.linalg.norm(mesh.vertices, axis=1) < 1e-9)
-    tr = hemisphere_transfer(
-        RayCaster(mesh),
-        mesh,
-        recv,
-        vertex_normals(mesh),
-        np.zeros((nv, 3)),
-        np.ones(nv, bool),
-        area_of,
-        [],
-        None,
-        rays_per_vertex=4096,
-        seed=4,
-    )
+    tr = _area_only_transfer(mesh, recv, area_of, 4096, seed=4)
     # Irradiance of a coaxial disc of unit radiance: pi r^2 / (h^2 + r^2) (polygonal: cos(pi/256)^2).
     expected = np.pi * r**2 / (h**2 + r**2) * np.cos(np.pi / 256) ** 2
     assert tr.area[0, 0] == pytest.approx(expected, rel=0.01)

@@ -45,6 +45,7 @@ import trimesh
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
+from reroom.io.jsonfile import read_json
 from reroom.io.mesh import read_ply, write_triangle_ply
 
 __all__ = [
@@ -166,15 +167,6 @@ class RoomModel:
         return np.asarray(p, float) @ self.rotation
 
 
-def _read_json(path: Path, hint: str) -> dict[str, Any]:
-    try:
-        return json.loads(path.read_text())
-    except OSError as exc:
-        raise ScanError(path, f"is missing: {hint}") from exc
-    except ValueError as exc:
-        raise ScanError(path, f"is not valid JSON ({exc})") from exc
-
-
 def load_model(
     scan_dir: str | Path,
     invert_dir: str | Path | None = None,
@@ -196,7 +188,7 @@ def load_model(
     inv = Path(invert_dir) if invert_dir is not None else scan_dir / "invert"
     lit = Path(lights_dir) if lights_dir is not None else scan_dir / "lights"
     lay = Path(layout_dir) if layout_dir is not None else scan_dir / "layout"
-    doc = _read_json(inv / "scene.json", "run `reroom invert SCAN` first")
+    doc = read_json(inv / "scene.json", "run `reroom invert SCAN` first")
     mesh = read_ply(inv / doc.get("albedo_file", "albedo.ply"))
     attrs = mesh.vertex_attributes
     if "albedo" not in attrs:
@@ -217,7 +209,7 @@ def load_model(
     layout = None
     rotation = np.eye(3)
     if (lay / "layout.json").is_file():
-        layout = _read_json(lay / "layout.json", "run `reroom layout SCAN` first")
+        layout = read_json(lay / "layout.json", "run `reroom layout SCAN` first")
         rotation = np.asarray(layout.get("rotation", np.eye(3)), float)
     return RoomModel(
         scan_dir,

@@ -25,7 +25,6 @@ renders it.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +33,7 @@ import trimesh
 
 from reroom.errors import ReroomError, ScanError
 from reroom.io.images import read_exr
+from reroom.io.jsonfile import read_json
 from reroom.io.mesh import read_ply, write_ply
 
 __all__ = ["model_scene", "point_light_table"]
@@ -101,12 +101,7 @@ def model_scene(
     lit = Path(lights_dir) if lights_dir is not None else scan_dir / "lights"
     work = Path(work_dir) if work_dir is not None else scan_dir / "render" / "model"
     scene_path = inv / "scene.json"
-    try:
-        model = json.loads(scene_path.read_text())
-    except OSError as exc:
-        raise ScanError(scene_path, "is missing: run `reroom invert SCAN` first") from exc
-    except ValueError as exc:
-        raise ScanError(scene_path, f"is not valid JSON ({exc})") from exc
+    model = read_json(scene_path, "run `reroom invert SCAN` first")
     albedo_mesh = read_ply(inv / model.get("albedo_file", "albedo.ply"))
     attrs = albedo_mesh.vertex_attributes
     if "albedo" not in attrs:

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -56,14 +55,9 @@ def encode_response(linear: np.ndarray, lut: np.ndarray) -> np.ndarray:
 def load_exposures(scan_dir: Path, meta: dict | None) -> tuple[dict[str, Any], np.ndarray]:
     """``hdr/exposures.json`` of a scan and the response LUT it names (errors name the file)."""
     from reroom.hdr.linearize import response_lut
+    from reroom.io.jsonfile import read_json
 
-    path = scan_dir / "hdr" / "exposures.json"
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as exc:
-        raise ScanError(path, "is missing: run `reroom hdr SCAN` first") from exc
-    except ValueError as exc:
-        raise ScanError(path, f"is not valid JSON ({exc})") from exc
+    doc = read_json(scan_dir / "hdr" / "exposures.json", "run `reroom hdr SCAN` first")
     return doc, response_lut(doc.get("response", "auto"), meta)
 
 
