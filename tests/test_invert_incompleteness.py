@@ -118,5 +118,21 @@ def test_subset_scan_remaps_vertices(tmp_path: Path):
         read_ply(out / "ground_truth" / "vertices.ply").vertex_attributes["part"], old
     )
     assert not (out / "invert").exists()
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="must not be"):
         subset_scan(scan, keep, scan / "sub")
+    with pytest.raises(ValueError, match="keep has shape"):
+        subset_scan(scan, keep[:-1], tmp_path / "bad")
+    # a lights.json written for another mesh is refused, naming the file
+    (scan / "lights" / "lights.json").write_text(json.dumps({"n_vertices": n + 1, "lights": []}))
+    with pytest.raises(ValueError, match="lights.json: n_vertices"):
+        subset_scan(scan, keep, tmp_path / "bad2")
+    assert not list(tmp_path.glob("sub/**/.*.tmp*")), "no temporary file may be left behind"
+
+
+def test_delete_chunks_bad_input():
+    mesh = _grid(10)
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="fraction"):
+        delete_chunks(mesh, 1.0, rng)
+    with pytest.raises(ValueError, match="unprotected"):
+        delete_chunks(mesh, 0.5, rng, protect=np.arange(100) > 10)

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from reroom.io.atomic import atomic_path, atomic_write_json
+
 __all__ = ["CHUNK_FRACTION", "delete_chunks", "vertex_adjacency", "subset_scan"]
 
 #: Size of one deleted region, as a fraction of the vertex count (thesis: 5 %).
@@ -199,7 +201,8 @@ def _subset_npz(src: Path, dst: Path, n: int, old, new_of_old) -> bool:
             out[k] = v[old]
         else:
             out[k] = v
-    np.savez_compressed(dst, **out)
+    with atomic_path(dst) as tmp:
+        np.savez_compressed(tmp, **out)
     return True
 
 
@@ -301,12 +304,12 @@ def subset_scan(
             d.setdefault("notes", []).append(
                 f"subset of {src}: {len(old)} of {n} vertices kept (incompleteness experiment)"
             )
-            dst.write_text(json.dumps(d, indent=2))
+            atomic_write_json(dst, d)
             done = True
         elif src.name == "ground_truth.json":
             d = json.loads(src.read_text())
             d["vertices"], d["faces"] = int(len(old)), int(len(new_faces))
-            dst.write_text(json.dumps(d, indent=2))
+            atomic_write_json(dst, d)
             done = True
         if done:
             info["subset"].append(rel)
