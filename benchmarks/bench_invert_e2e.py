@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_invert_e2e.py SCAN [--add-point x,y,z,name ...]
+    python benchmarks/bench_invert_e2e.py SCAN [--add-point x,y,z,name ...] [--localize]
     python benchmarks/bench_invert_e2e.py SCAN --rerender-only INVERT_DIR --lights LIGHTS_DIR \
         --unit-scale-from-truth
 
@@ -38,6 +38,11 @@ def main() -> None:
     )
     ap.add_argument("scan", type=Path)
     ap.add_argument("--add-point", action="append", default=[], help="x,y,z[,name] (user light)")
+    ap.add_argument(
+        "--localize",
+        action="store_true",
+        help="point lights from `reroom localize --into-lights` (no light placed by a person)",
+    )
     ap.add_argument("--rerender-only", type=Path, default=None, help="an invert folder")
     ap.add_argument("--lights", type=Path, default=None, help="lights folder (--rerender-only)")
     ap.add_argument("--unit-scale-from-truth", action="store_true")
@@ -68,6 +73,18 @@ def main() -> None:
         check_user_lights(lights)
         write_lights(lights, scan / "lights")
         timings["lights"] = time.perf_counter() - t
+        if args.localize:
+            from reroom.localize.scan import (
+                ScanLocalizeOptions,
+                localize_into_lights,
+                localize_scan,
+            )
+
+            t = time.perf_counter()
+            res, info = localize_scan(scan, ScanLocalizeOptions())
+            for line in localize_into_lights(scan, res, info)[1]:
+                print("localize:", line)
+            timings["localize"] = time.perf_counter() - t
         t = time.perf_counter()
         run_invert(scan, scan / "invert")
         timings["invert"] = time.perf_counter() - t

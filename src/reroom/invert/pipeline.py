@@ -127,6 +127,11 @@ class InvertResult:
     timings : dict of str to float
     warnings : list of str
     out_dir : Path
+    problem : InverseProblem or None
+        The eq. 5.7 data that was solved (for diagnosis: re-solve it with one input
+        swapped, see ``benchmarks/bench_invert_diagnosis.py``).
+    problem_vertices : ndarray of int or None
+        Mesh vertex index of each row of ``problem``.
     """
 
     solve: SolveResult
@@ -140,6 +145,8 @@ class InvertResult:
     timings: dict[str, float]
     warnings: list[str]
     out_dir: Path
+    problem: InverseProblem | None = None
+    problem_vertices: np.ndarray | None = None
 
 
 def _require(path: Path, what: str) -> Path:
@@ -453,6 +460,8 @@ def run_invert(
         timings=timings,
         warnings=notes,
         out_dir=out,
+        problem=problem,
+        problem_vertices=receivers[rows],
     )
     meta = {
         "scan": str(scan),

@@ -1,0 +1,334 @@
+"""Why do the end-to-end lights come out weak? The experiments behind docs/invert.md.
+
+The figures of docs/invert.md, "Where the ~30 % comes from", and of its "Poorly seen bins"
+paragraph come from this script. ``SCAN`` is a synthetic scan with ``hdr/``, ``layout/``
+and ``lights/`` (and ``invert/`` for ``--fireflies``). Everything here is evaluation: it
+reads ``ground_truth/``, which the estimate never does.
+
+``--reprobe SPP --eval-dir DIR``
+    Re-probes the true per-vertex radiance with ``SPP`` samples and writes DIR, a folder
+    linking SCAN's files with ``ground_truth/vertices.ply`` replaced. The generator's
+    default 64-256 spp per vertex leaves a right-skewed 10-20 % Monte-Carlo error per
+    vertex; use DIR as SCAN afterwards.
+``--swaps``
+    ``reroom invert`` with one input swapped for the truth's at a time (HDR or true
+    radiance, detected or true lights, true radiance where the HDR mesh is observed), then
+    the same eq. 5.7 problem re-solved with the receivers' ``Lbar`` or their ``E_ind``
+    taken from the truth: cluster-albedo and light-power errors per row.
+``--indirect``
+    ``E_ind`` from the true radiance (512 hemisphere rays) against the path tracer's
+    indirect irradiance ``pi (L - L_direct) / rho``, ``L_direct`` rendered at depth 2.
+``--bands``
+    HDR / true radiance per band of true radiance (relative to the overall ratio of sums),
+    binned by ``--bin-by PLY`` (an independent truth sample, so that the truth's own noise
+    cannot fake a trend) or by the truth itself.
+``--hdr-variants``
+    ``--bands`` for HDR meshes re-made with the thesis's weights, the predicted-level
+    weights (the default) and nearest-pixel sampling.
+``--fireflies FRAME``
+    Renders input frame FRAME from the recovered model with every light, then with each
+    light off, and counts pixels brighter than 3x their 5x5 median.
+
+Usage (niced; one ``reroom invert`` is 20-50 s)::
+
+    python benchmarks/bench_invert_diagnosis.py SCAN --reprobe 1024 --eval-dir /tmp/hq
+    python benchmarks/bench_invert_diagnosis.py /tmp/hq --swaps --indirect --bands \\
+        --bin-by SCAN/ground_truth/vertices.ply --work /tmp/diag
+    python benchmarks/bench_invert_diagnosis.py SCAN --fireflies 5 --work /tmp/diag
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from reroom.invert.evaluate import evaluate_invert, lights_from_truth
+from reroom.invert.pipeline import InvertOptions, run_invert
+from reroom.invert.solve import SolveOptions, solve_lighting
+from reroom.io.mesh import read_ply, write_ply
+
+CLUSTERS = {"wall": 0, "floor": 1, "ceiling": 2}
+
+
+def _pct(v) -> str:
+    return "/".join(f"{100 * x:+.0f}" for x in np.atleast_1d(v)) + " %"
+
+
+def linked_scan(src: Path, dst: Path, replace: dict[str, Path]) -> Path:
+    """``dst`` with a symlink to each of ``src``'s entries, except ``replace``'s (copied).
+
+    ``replace`` maps a relative path (``lights``, ``ground_truth/vertices.ply``) to what
+    stands there instead; ``ground_truth`` is linked entry by entry when one of its
+    files is replaced.
+    """
+    if dst.exists():
+        shutil.rmtree(dst)
+    dst.mkdir(parents=True)
+    tops = {Path(k).parts[0] for k in replace}
+    for entry in src.iterdir():
+        if entry.name not in tops:
+            (dst / entry.name).symlink_to(entry.resolve())
+    for rel, path in replace.items():
+        target = dst / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if len(Path(rel).parts) > 1:
+            for sib in (src / Path(rel).parent).iterdir():
+                if sib.name != target.name and not (target.parent / sib.name).exists():
+                    (target.parent / sib.name).symlink_to(sib.resolve())
+        if path.is_dir():
+            shutil.copytree(path, target)
+        else:
+            shutil.copyfile(path, target)
+    return dst
+
+
+def reprobe(scan: Path, spp: int, eval_dir: Path) -> None:
+    """Write ``eval_dir``: ``scan`` with its true vertex radiance re-probed at ``spp``."""
+    import trimesh
+
+    from reroom.render import mitsuba
+    from reroom.render.frames import probe_radiance
+    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
+
+    mi = mitsuba()
+    scene_dir = scan / "ground_truth" / "scene"
+    scene = mi.load_dict(mitsuba_scene_dict(load_scene_description(scene_dir), scene_dir))
+    gt = read_ply(scan / "ground_truth" / "vertices.ply")
+    mesh = read_ply(scan / "mesh.ply")
+    normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
+    rad, err = probe_radiance(scene, np.asarray(mesh.vertices), normals, spp, seed=7)
+    attrs = dict(gt.vertex_attributes, radiance=rad, radiance_stderr=err)
+    tmp = eval_dir.parent / (eval_dir.name + ".vertices.ply")
+    write_ply(tmp, trimesh.Trimesh(gt.vertices, gt.faces, process=False), attrs)
+    linked_scan(scan, eval_dir, {"ground_truth/vertices.ply": tmp})
+    tmp.unlink()
+    rel = err[:, 1] / np.maximum(rad[:, 1], 1e-12)
+    print(
+        f"re-probed {len(rad)} vertices at {spp} spp: median relative stderr {np.median(rel):.3f}"
+    )
+
+
+def _truth(scan: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    a = read_ply(scan / "ground_truth" / "vertices.ply").vertex_attributes
+    return (
+        np.asarray(a["radiance"], float),
+        np.asarray(a["albedo"], float),
+        np.asarray(a["label"]).astype(int),
+    )
+
+
+def _hdr(scan: Path) -> tuple[np.ndarray, np.ndarray]:
+    a = read_ply(scan / "hdr" / "hdr_mesh.ply").vertex_attributes
+    rad = np.asarray(a["radiance"], float)
+    return rad, np.asarray(a["observed"]).astype(bool) & np.isfinite(rad).all(axis=1)
+
+
+def _row(label: str, report: dict) -> str:
+    cl = report["clusters"]
+    cells = [_pct(cl[c]["relative_error"]) for c in CLUSTERS]
+    powers = []
+    for light in report["lights"]:
+        err = light.get("power_relative_error")
+        powers.append(f"{light['name']} {_pct(err)}" if err is not None else light["name"])
+    return f"| {label} | " + " | ".join(cells) + " | " + "; ".join(powers) + " |"
+
+
+def _invert(scan: Path, out: Path, radiance=None, solve: SolveOptions | None = None):
+    res = run_invert(
+        scan,
+        out,
+        InvertOptions(pictures=False, solve=solve or SolveOptions()),
+        radiance_override=radiance,
+    )
+    if radiance is not None:
+        # evaluate_invert then takes the radiance's scale as 1 (it is the truth's)
+        (out / "true_radiance.flag").write_text("evaluation-only: true radiance\n")
+    return res
+
+
+def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
+    """Each input of the end-to-end run swapped for the truth's, one at a time.
+
+    ``rows`` < 4 runs only the first ``rows`` variants (and no re-solves).
+    """
+    true_rad, true_albedo, label = _truth(scan)
+    _, observed = _hdr(scan)
+    from reroom.lights import write_lights
+
+    write_lights(lights_from_truth(scan), work / "true_lights")
+    true_lights_scan = linked_scan(
+        scan, work / "scan_true_lights", {"lights": work / "true_lights"}
+    )
+    print("| run | wall | floor | ceiling | lights (power error) |\n|---|---|---|---|---|")
+    runs = {}
+    variants = [
+        ("HDR radiance, detected lights", scan, None),
+        ("HDR radiance, true lights", true_lights_scan, None),
+        ("true radiance, detected lights", scan, true_rad),
+        (
+            "true radiance where the HDR mesh is observed",
+            scan,
+            np.where(observed[:, None], true_rad, np.nan),
+        ),
+    ]
+    for name, src, rad in variants[:rows]:
+        out = work / name.replace(" ", "_").replace(",", "")
+        runs[name] = _invert(src, out, rad, solve)
+        print(_row(name, evaluate_invert(src, out)), flush=True)
+
+    if rows < len(variants):
+        return
+    # The same problem (same receivers), re-solved with one input from the truth.
+    hdr = runs["HDR radiance, detected lights"]
+    masked = runs["true radiance where the HDR mesh is observed"]
+    if not np.array_equal(hdr.problem_vertices, masked.problem_vertices):
+        print("(the two runs have different receivers: no re-solves)")
+        return
+    ph, pt = hdr.problem, masked.problem
+    k = ph.radiance.sum(axis=0) / pt.radiance.sum(axis=0)
+    # As evaluate_invert: the mean true albedo of every vertex the truth labels so.
+    truth_rho = np.stack([true_albedo[label == CLUSTERS[c]].mean(axis=0) for c in ph.cluster_names])
+    print(f"\nre-solves of the HDR run's problem (k = {np.round(k, 3).tolist()}), albedo error:\n")
+    print("| re-solve | " + " | ".join(ph.cluster_names) + " |\n|---|---|---|---|")
+    for name, prob in [
+        ("as solved", ph),
+        ("Lbar from the truth (x k)", dataclasses.replace(ph, radiance=pt.radiance * k)),
+        ("E_ind from the truth (x k)", dataclasses.replace(ph, indirect=pt.indirect * k)),
+    ]:
+        r = solve_lighting(prob, solve)
+        print(f"| {name} | " + " | ".join(_pct(x) for x in r.albedo / truth_rho - 1) + " |")
+
+
+def indirect(scan: Path, work: Path) -> None:
+    """``E_ind`` (true radiance, hemisphere rays) against the path tracer's indirect light."""
+    import trimesh
+
+    from reroom.render import mitsuba
+    from reroom.render.frames import probe_radiance
+    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
+
+    true_rad, true_albedo, label = _truth(scan)
+    res = _invert(scan, work / "indirect_true_radiance", true_rad)
+    mi = mitsuba()
+    scene_dir = scan / "ground_truth" / "scene"
+    desc = load_scene_description(scene_dir)
+    desc["integrator"] = {"type": "path", "max_depth": 2}  # emission + direct light only
+    scene = mi.load_dict(mitsuba_scene_dict(desc, scene_dir))
+    mesh = read_ply(scan / "mesh.ply")
+    rows = res.problem_vertices
+    normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
+    direct, _ = probe_radiance(scene, np.asarray(mesh.vertices)[rows], normals[rows], 256, seed=1)
+    rho = np.maximum(true_albedo[rows], 1e-3)
+    e_true = np.pi * (true_rad[rows] - direct) / rho
+    e_ours = res.problem.indirect
+    print("\n| cluster | receivers | sum E_ind ours / path tracer | indirect share |")
+    print("|---|---|---|---|")
+    for name, lab in CLUSTERS.items():
+        m = label[rows] == lab
+        share = e_true[m].sum() / (np.pi * true_rad[rows][m] / rho[m]).sum()
+        print(f"| {name} | {m.sum()} | {e_ours[m].sum() / e_true[m].sum():.3f} | {share:.2f} |")
+
+
+def bands(scan: Path, bin_by: Path | None) -> None:
+    """HDR / true radiance per band of true radiance (green, clustered observed vertices)."""
+    true_rad, _, label = _truth(scan)
+    hdr_rad, observed = _hdr(scan)
+    key = true_rad if bin_by is None else np.asarray(read_ply(bin_by).vertex_attributes["radiance"])
+    m = observed & np.isin(label, list(CLUSTERS.values())) & (true_rad[:, 1] > 1e-3)
+    k = hdr_rad[m, 1].sum() / true_rad[m, 1].sum()
+    src = "the truth itself" if bin_by is None else str(bin_by)
+    print(f"\nHDR / true radiance by band (binned by {src}; overall ratio of sums {k:.3f}):\n")
+    print("| true radiance band | vertices | HDR / true, relative |\n|---|---|---|")
+    for lo, hi in [(0, 0.02), (0.02, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.4), (0.4, np.inf)]:
+        s = m & (key[:, 1] >= lo) & (key[:, 1] < hi)
+        if s.any():
+            ratio = hdr_rad[s, 1].sum() / true_rad[s, 1].sum() / k
+            print(f"| [{lo}, {hi}) | {s.sum()} | {ratio:.3f} |")
+
+
+def hdr_variants(scan: Path, work: Path, bin_by: Path | None) -> None:
+    """``--bands`` for HDR meshes made with other reprojection choices (docs/hdr.md)."""
+    from reroom.hdr.observe import ObserveOptions
+    from reroom.hdr.pipeline import HdrOptions, run_hdr
+
+    for label, sampling, predicted in [
+        ("thesis weights (own level), 3x3 box", "box3", False),
+        ("predicted-level weights, 3x3 box (default)", "box3", True),
+        ("predicted-level weights, nearest pixel", "nearest", True),
+    ]:
+        tag = f"hdr_{sampling}_{'predicted' if predicted else 'own'}"
+        opt = HdrOptions(
+            baselines=False,
+            report=False,
+            predicted_weights=predicted,
+            observe=ObserveOptions(sampling=sampling),
+        )
+        run_hdr(scan, work / tag, opt)
+        print(f"\n**{label}**")
+        bands(linked_scan(scan, work / f"scan_{tag}", {"hdr": work / tag}), bin_by)
+
+
+def fireflies(scan: Path, frame: int, work: Path, spp: int) -> None:
+    """Speckle in a render of the recovered model, with every light and with each one off."""
+    import scipy.ndimage as ndi
+
+    from reroom.edit import render_edit
+    from reroom.io.images import read_exr
+
+    names = [x["name"] for x in json.loads((scan / "invert" / "scene.json").read_text())["lights"]]
+    print(f"\n| render of frame {frame} ({spp} spp) | pixels > 3x their 5x5 median | mean |")
+    print("|---|---|---|")
+    for label, ops in [("every light", [])] + [
+        (f"{n} off", [{"op": "light", "name": n, "off": True}]) for n in names
+    ]:
+        tag = label.replace(" ", "_")
+        render_edit(scan, ops, work / "fireflies" / tag, frames=[frame], spp=spp, name=tag)
+        img = read_exr(work / "fireflies" / tag / f"{tag}_f{frame:05d}.exr")[..., :3].mean(axis=2)
+        med = ndi.median_filter(img, 5)
+        print(f"| {label} | {np.mean(img > 3 * np.maximum(med, 1e-6)):.2%} | {img.mean():.4f} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("scan", type=Path)
+    ap.add_argument("--work", type=Path, default=Path("/tmp/reroom_invert_diagnosis"))
+    ap.add_argument("--reprobe", type=int, default=0, help="samples per vertex")
+    ap.add_argument("--eval-dir", type=Path, help="where --reprobe writes the linked scan")
+    ap.add_argument("--swaps", action="store_true")
+    ap.add_argument("--solve", default="{}", help="SolveOptions as JSON for --swaps")
+    ap.add_argument("--indirect", action="store_true")
+    ap.add_argument("--bands", action="store_true")
+    ap.add_argument("--bin-by", type=Path, help="independent truth PLY for --bands")
+    ap.add_argument(
+        "--hdr-variants", action="store_true", help="--bands for other HDR reprojection choices"
+    )
+    ap.add_argument("--rows", type=int, default=4, help="--swaps: only the first N variants")
+    ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
+    ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
+    args = ap.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    if args.reprobe:
+        if args.eval_dir is None:
+            ap.error("--reprobe needs --eval-dir")
+        reprobe(args.scan, args.reprobe, args.eval_dir)
+    if args.swaps:
+        swaps(args.scan, args.work, SolveOptions(**json.loads(args.solve)), args.rows)
+    if args.indirect:
+        indirect(args.scan, args.work)
+    if args.bands:
+        bands(args.scan, args.bin_by)
+    if args.hdr_variants:
+        hdr_variants(args.scan, args.work, args.bin_by)
+    if args.fireflies is not None:
+        fireflies(args.scan, args.fireflies, args.work, args.spp)
+
+
+if __name__ == "__main__":
+    main()
