@@ -10,7 +10,7 @@ reads ``ground_truth/``, which the estimate never does.
     linking SCAN's files with ``ground_truth/vertices.ply`` replaced. The generator's
     default 64-256 spp per vertex leaves a right-skewed 10-20 % Monte-Carlo error per
     vertex; use DIR as SCAN afterwards.
-``--swaps``
+``--swaps``  (``--invert JSON``: other InvertOptions for every run, e.g. ``near_distance``)
     ``reroom invert`` with one input swapped for the truth's at a time (HDR or true
     radiance, detected or true lights, true radiance where the HDR mesh is observed), then
     the same eq. 5.7 problem re-solved with the receivers' ``Lbar`` or their ``E_ind``
@@ -138,11 +138,15 @@ def _row(label: str, report: dict) -> str:
     return f"| {label} | " + " | ".join(cells) + " | " + "; ".join(powers) + " |"
 
 
+#: Extra InvertOptions of every run (``--invert``, e.g. ``{"near_distance": 0}``).
+INVERT_EXTRA: dict = {}
+
+
 def _invert(scan: Path, out: Path, radiance=None, solve: SolveOptions | None = None):
     res = run_invert(
         scan,
         out,
-        InvertOptions(pictures=False, solve=solve or SolveOptions()),
+        InvertOptions(pictures=False, solve=solve or SolveOptions(), **INVERT_EXTRA),
         radiance_override=radiance,
     )
     if radiance is not None:
@@ -303,6 +307,9 @@ def main() -> None:
     ap.add_argument("--eval-dir", type=Path, help="where --reprobe writes the linked scan")
     ap.add_argument("--swaps", action="store_true")
     ap.add_argument("--solve", default="{}", help="SolveOptions as JSON for --swaps")
+    ap.add_argument(
+        "--invert", default="{}", help="InvertOptions as JSON, e.g. '{\"near_distance\": 0}'"
+    )
     ap.add_argument("--indirect", action="store_true")
     ap.add_argument("--bands", action="store_true")
     ap.add_argument("--bin-by", type=Path, help="independent truth PLY for --bands")
@@ -314,6 +321,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
+    INVERT_EXTRA.update(json.loads(args.invert))
     if args.reprobe:
         if args.eval_dir is None:
             ap.error("--reprobe needs --eval-dir")

@@ -81,7 +81,7 @@ def doctor() -> None:
 
 @app.command()
 def synth(
-    preset: Annotated[str, typer.Argument(help="box | furnished | lshape | tworooms")],
+    preset: Annotated[str, typer.Argument(help="box | box_points | furnished | lshape | tworooms")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Scan folder to write.")],
     frames: Annotated[int, typer.Option(help="Number of frames.")] = 24,
     width: Annotated[int, typer.Option(help="Frame width in pixels.")] = 160,

@@ -284,6 +284,9 @@ def write_outputs(
         "nonphysical": flags["nonphysical"].astype(np.uint8),
         "unobserved": flags["unobserved"].astype(np.uint8),
         "light": flags["light"].astype(np.uint8),
+        "near_geometry": flags.get("near_geometry", np.zeros(len(flags["light"]), bool)).astype(
+            np.uint8
+        ),
     }
     write_ply(out / "albedo.ply", trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), attrs)
     lights = light_entries(result, out, float(meta.get("options", {}).get("min_bin_support", 0.01)))
@@ -340,6 +343,7 @@ def write_outputs(
             "solved_per_vertex": int(flags["solved_per_vertex"].sum()),
             "nonphysical": int(flags["nonphysical"].sum()),
             "unobserved": int(flags["unobserved"].sum()),
+            "near_geometry": int(flags.get("near_geometry", np.zeros(0, bool)).sum()),
         },
         "warnings": result.warnings,
         **meta,

@@ -27,6 +27,7 @@ from reroom.hdr.observe import vertex_normals
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
+from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
     InverseProblem,
     LightBlock,
@@ -75,6 +76,13 @@ class InvertOptions:
         to this fraction of its mean edge length (:func:`reroom.invert.transfer.
         inset_points`), away from seams where shadow rays start in the plane of the
         neighbouring surface. Off (0) by default: measured worse (docs/invert.md).
+    near_distance : float
+        Metres. Clustered receivers whose hemisphere is blocked within this distance
+        (seams, contact gaps: :mod:`reroom.invert.receivers`) by more than
+        ``near_max_fraction`` are left out of the lighting solve; their transfer at the
+        vertex cannot match the radiance the photos show around it. 0: keep all.
+    near_max_fraction : float
+        See ``near_distance``.
     min_bin_support : float
         A point or line light's bin whose summed transfer over the clustered receivers
         is below this fraction of its best-seen bin's is *poorly seen*: its solved value
@@ -99,6 +107,8 @@ class InvertOptions:
     area_samples: int = DEFAULT_AREA_SAMPLES
     fixture_margin: float = 0.05
     receiver_inset: float = 0.0
+    near_distance: float = 0.05
+    near_max_fraction: float = 0.05
     min_bin_support: float = 0.01
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
@@ -404,6 +414,19 @@ def run_invert(
     rec_labels = labels[receivers]
     in_cluster = np.isin(rec_labels, list(CLUSTER_LABELS.values()))
     rows = np.flatnonzero(in_cluster)
+    near = np.zeros(len(receivers), dtype=bool)
+    if options.near_distance > 0 and len(rows):
+        blocked = near_occlusion(
+            caster, mesh, receivers[rows], n_recv[rows], options.near_distance, seed=options.seed
+        )
+        near[rows] = blocked > options.near_max_fraction
+        if near.any():
+            notes.append(
+                f"{int(near.sum())} of {len(rows)} clustered vertices have other geometry "
+                f"within {options.near_distance:g} m (seams, contact gaps): left out of the "
+                "lighting solve"
+            )
+        rows = rows[~near[rows]]
     cluster = np.array([cluster_of_label[x] for x in rec_labels[rows]], dtype=int)
     problem = InverseProblem(
         radiance=radiance[receivers[rows]],
@@ -435,7 +458,9 @@ def run_invert(
         "nonphysical": np.zeros(nv, bool),
         "unobserved": ~observed,
         "light": on_light,
+        "near_geometry": np.zeros(nv, bool),
     }
+    flags["near_geometry"][receivers[near]] = True
     used_rows = rows[result.cluster_used[cluster]]
     flags["in_cluster"][receivers[used_rows]] = True
     flags["solved_per_vertex"][receivers] = np.isfinite(rec_albedo).all(axis=1)
