@@ -134,7 +134,9 @@ def _row(label: str, report: dict) -> str:
     powers = []
     for light in report["lights"]:
         err = light.get("power_relative_error")
-        powers.append(f"{light['name']} {_pct(err)}" if err is not None else light["name"])
+        text = f"{light['name']} {_pct(err)}" if err is not None else light["name"]
+        l2 = light.get("distribution_relative_l2")
+        powers.append(text + (f" (L2 {100 * l2:.0f} %)" if l2 is not None else ""))
     return f"| {label} | " + " | ".join(cells) + " | " + "; ".join(powers) + " |"
 
 
@@ -168,7 +170,9 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
     true_lights_scan = linked_scan(
         scan, work / "scan_true_lights", {"lights": work / "true_lights"}
     )
-    print("| run | wall | floor | ceiling | lights (power error) |\n|---|---|---|---|---|")
+    print(
+        "| run | wall | floor | ceiling | lights (power error, distribution L2) |\n|---|---|---|---|---|"
+    )
     runs = {}
     variants = [
         ("HDR radiance, detected lights", scan, None),

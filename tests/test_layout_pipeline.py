@@ -90,3 +90,70 @@ def test_floor_and_ceiling_without_walls_still_writes_labels(tmp_path: Path):
     assert "no walls found" in str(err.value) or "no closed floorplan" in str(err.value)
     lab = read_ply(tmp_path / "out" / OUTPUT_FILES["labels"]).vertex_attributes["label"]
     assert np.sum(lab == 1) > 1000 and np.sum(lab == 2) > 1000  # floor and ceiling
+
+
+def test_room_without_ceiling_writes_a_partial_layout(tmp_path: Path):
+    from reroom.synth.presets import MATERIALS
+    from reroom.synth.room import RoomSpec, build_room
+
+    spec = RoomSpec(np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float), 0.0, 2.7, [])
+    pc = Piece.concat(
+        [p.piece for p in build_room(spec, 0.1, MATERIALS)[0] if p.label != "ceiling"]
+    )
+    m = trimesh.Trimesh(pc.vertices, pc.faces, process=False)
+    m.merge_vertices()
+    scan = _write(tmp_path / "scan", np.asarray(m.vertices), np.asarray(m.faces))
+    res = run_layout(scan, tmp_path / "out")
+    doc = json.loads((tmp_path / "out" / OUTPUT_FILES["layout"]).read_text())
+    assert doc["ceiling"] == "estimated"
+    assert any("no ceiling seen" in w and "lower bound" in w for w in doc["warnings"])
+    (room,) = doc["rooms"]
+    assert room["ceiling"] == "estimated"
+    assert 2.6 <= room["ceiling_z"] - room["floor_z"] <= 2.7 + 1e-6
+    assert room["area"] == pytest.approx(20.0, rel=0.02)
+    assert room["wall_support"] > 0.9 and all(w["seen"] > 0.8 for w in room["walls"])
+    assert doc["label_counts"]["ceiling"] == 0 and doc["label_counts"]["wall"] > 1000
+    assert res.structure.ceiling_estimated
+    empty = trimesh.load(tmp_path / "out" / OUTPUT_FILES["empty_room"], process=False)
+    assert all(p.is_watertight for p in empty.split(only_watertight=False))
+
+
+SLAMBOOK = Path(
+    os.environ.get(
+        "REROOM_SLAMBOOK2_RGBD",
+        Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "slambook2_rgbd",
+    )
+)
+
+
+@pytest.mark.skipif(
+    not (SLAMBOOK / "pose.txt").is_file(), reason=f"slambook2 frames not found at {SLAMBOOK}"
+)
+def test_slambook2_partial_room(tmp_path: Path):
+    """The real scan whose cameras hardly look up: a partial room under an estimated ceiling."""
+    from reroom.importers import import_rgbd_folder
+
+    scan = import_rgbd_folder(SLAMBOOK, tmp_path / "scan").parent
+    res = run_layout(scan, tmp_path / "out", LayoutOptions(figure=False))
+    doc = res.layout
+    assert doc["ceiling"] == "estimated" and doc["warnings"]
+    assert doc["floor_z"] == pytest.approx(-1.36, abs=0.03)
+    height = doc["ceiling_z"] - doc["floor_z"]
+    assert 2.1 < height < 2.6  # walls seen up to ~2.3 m; no ceiling seen at all
+    assert doc["rooms"], "a partial room"
+    room = doc["rooms"][0]
+    assert room["area"] > 8.0  # more than the floor seen (about 6 m² of floor faces)
+    assert room["wall_support"] >= 0.1
+    # Openings only on walls that were seen (not on the edge of the floor's coverage).
+    for o in room["openings"]:
+        assert room["walls"][o["wall"]]["seen"] >= 0.5
+    # The scan was taken from inside the room: frames 0-3's cameras stood beyond the
+    # floor the scan covered, and the outline is grown to contain every camera.
+    from reroom.layout.floorplan import points_in_polygon
+    from reroom.scan import load_scan
+
+    cams = np.array([f.center for f in load_scan(scan).frames]) @ res.structure.rotation.T
+    assert len(cams) == 5
+    assert points_in_polygon(cams[:, :2], np.array(room["polygon"])).all()
+    assert any("grown to contain" in w for w in doc["warnings"])
+    assert (tmp_path / "out" / OUTPUT_FILES["empty_room"]).is_file()

@@ -288,3 +288,138 @@ def test_structure_of_a_tilted_and_turned_room():
     (room,) = st.rooms
     assert room.area == pytest.approx(20.0, rel=0.01)
     assert sorted(w["length"] for w in room.walls) == pytest.approx([4, 4, 5, 5], abs=0.02)
+
+
+# ----------------------------------------------------------------------------- no ceiling seen
+
+
+def _no_ceiling(room: RoomSpec, cut: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A room mesh without its ceiling; ``cut``: also without anything above that height."""
+    parts = [p for p in build_room(room, 0.1, MATERIALS)[0] if p.label != "ceiling"]
+    pc = Piece.concat([p.piece for p in parts])
+    v, f = pc.vertices, pc.faces
+    if cut is not None:
+        f = f[(v[f][:, :, 2] <= cut + 1e-9).all(axis=1)]
+    m = trimesh.Trimesh(v, f, process=False)
+    m.remove_unreferenced_vertices()
+    m.merge_vertices()
+    return _vf(m)
+
+
+def test_room_without_a_seen_ceiling_gets_an_estimated_one():
+    v, f = _no_ceiling(box_room())
+    with pytest.raises(LayoutError, match="no ceiling found"):
+        estimate_structure(v, f, StructureOptions(estimate_ceiling=False))
+    st = estimate_structure(v, f)
+    assert st.ceiling_estimated
+    # The walls' tops are the highest wall points: 2.7 m (within a 10 cm mesh row).
+    assert 2.6 <= st.ceiling.z - st.floor.z <= 2.7 + 1e-6
+    assert st.ceiling.support == 0.0
+    (room,) = st.rooms
+    assert room.area == pytest.approx(20.0, rel=0.02)
+    assert sorted(w["length"] for w in room.walls) == pytest.approx([4, 4, 5, 5], abs=0.05)
+    assert room.support > 0.9 and np.all(room.seen > 0.8)
+    assert any("no ceiling seen" in w and "lower bound" in w for w in st.warnings)
+    # The same room with its ceiling keeps the seen one and no warning.
+    st = estimate_structure(*_vf(room_mesh([box_room()])))
+    assert not st.ceiling_estimated and st.warnings == []
+    assert st.ceiling.z - st.floor.z == pytest.approx(2.7, abs=0.005)
+
+
+def test_estimated_ceiling_is_at_least_the_smallest_room_height():
+    # Walls scanned only up to 1.5 m: the ceiling goes to the floor + min_room_height.
+    v, f = _no_ceiling(box_room(), cut=1.5)
+    st = estimate_structure(v, f, StructureOptions(min_room_height=2.2))
+    assert st.ceiling_estimated
+    assert st.ceiling.z - st.floor.z == pytest.approx(2.2, abs=1e-9)
+    assert any("smallest room height" in w for w in st.warnings)
+    assert st.rooms and st.rooms[0].area == pytest.approx(20.0, rel=0.02)
+
+
+def test_partial_floor_coverage_extends_to_the_walls_that_face_it():
+    from reroom.layout.floorplan import extend_to_walls
+
+    grid = FloorGrid(0.0, 0.0, 0.1, (50, 40))  # 5 x 4 m
+    region = np.zeros(grid.shape, bool)
+    region[5:25, 5:30] = True  # the floor seen: x 0.5-2.5, y 0.5-3.0
+    # A wall at x = 4.0 facing -x along y 1.0-2.5 (1.5 m from the coverage), one at
+    # x = 0.2 facing +x (0.3 m), and one facing away from the coverage at y = 3.8.
+    segs = [_seg(1, 4.0, 1.0, 2.5), _seg(0, 0.2, 0.5, 3.0), _seg(3, 0.1, 0.5, 2.5)]
+    out = extend_to_walls(region, segs, grid, reach=3.0)
+    assert out[region].all()
+    assert out[25:40, 10:25].all()  # up to the x = 4.0 wall, along its extent
+    assert not out[25:40, 27:].any() and not out[40:, :].any()
+    assert out[2:5, 5:30].all() and not out[:2].any()  # up to the x = 0.2 wall
+    assert not out[:, :5].any()  # the wall facing away adds nothing
+    # Beyond the reach nothing is added.
+    assert not extend_to_walls(region, segs[:1], grid, reach=1.0)[25:].any()
+
+
+def test_points_outside_a_region_are_included_by_rectangles():
+    from reroom.layout.floorplan import include_points
+
+    grid = FloorGrid(0.0, 0.0, 0.1, (60, 60))  # 6 x 6 m
+    region = np.zeros(grid.shape, bool)
+    region[10:40, 30:55] = True  # x 1.0-4.0, y 3.0-5.5
+    # One point inside (nothing to add), one 2 m in front of the region.
+    out, xs, ys, n = include_points(region, np.array([[2.0, 4.0], [2.5, 1.0]]), [], grid, 0.5)
+    assert n == 1 and out[region].all()
+    assert out[20:30, 5:30].all()  # x 2.0-3.0 (the point +- 0.5 m) from y 0.5 up to the region
+    assert not out[:, :5].any() and not out[:20, :30].any() and not out[30:, :30].any()
+    assert min(ys) == pytest.approx(0.5) and min(xs) == pytest.approx(2.0)
+    assert max(xs) == pytest.approx(3.0)
+    # A wall facing the point 20 cm behind it clips the rectangle there, not before it.
+    out, _, ys, _ = include_points(
+        region, np.array([[2.5, 1.0]]), [_seg(2, 0.8, 1.0, 4.0)], grid, 0.5
+    )
+    assert out[20:30, 8:30].all() and not out[:, :8].any()
+    assert min(ys) == pytest.approx(0.8)
+    # A wall the point stands behind (it faces away) does not.
+    out, *_ = include_points(region, np.array([[2.5, 1.0]]), [_seg(3, 0.8, 1.0, 4.0)], grid, 0.5)
+    assert out[20:30, 5:30].all()
+    # Nothing outside: the region as it was.
+    out, xs, ys, n = include_points(region, np.array([[2.0, 4.0]]), [], grid, 0.5)
+    assert n == 0 and xs == [] and (out == region).all()
+
+
+def _front_half_without_ceiling() -> tuple[np.ndarray, np.ndarray]:
+    """A 5 x 8 m room without its ceiling, scanned only where y >= 4 m (as if every
+    camera stood in the near half and looked away from it, never down at its floor)."""
+    v, f = _no_ceiling(box_room(5.0, 8.0))
+    f = f[(v[f][:, :, 1] >= 4.0 - 1e-9).all(axis=1)]
+    m = trimesh.Trimesh(v, f, process=False)
+    m.remove_unreferenced_vertices()
+    return _vf(m)
+
+
+def test_a_partial_room_is_grown_to_contain_the_cameras():
+    from reroom.layout.floorplan import points_in_polygon
+
+    v, f = _front_half_without_ceiling()
+    cams = np.array([[2.5, 1.0, 1.4], [3.0, 2.0, 1.4]])
+    alone = estimate_structure(v, f)
+    assert alone.ceiling_estimated
+    (room,) = alone.rooms
+    assert room.area == pytest.approx(20.0, rel=0.05)  # the half that was seen
+    assert not points_in_polygon(cams[:, :2], room.polygon).any()
+    st = estimate_structure(v, f, cameras=cams)
+    (grown,) = st.rooms
+    assert grown.cameras_added == 2
+    assert points_in_polygon(cams[:, :2], grown.polygon).all()
+    # With room around each camera: 0.5 m (a nearby line may stand in, 24 cm at most).
+    for dx, dy in ((0.25, 0), (-0.25, 0), (0, 0.25), (0, -0.25)):
+        assert points_in_polygon(cams[:, :2] + [dx, dy], grown.polygon).all()
+    # The seen part is unchanged; what was added are 1 m wide rectangles: from the
+    # nearer camera (3, 2) to the coverage at y = 4, from the other one to that one.
+    assert points_in_polygon(room.polygon.mean(axis=0)[None], grown.polygon)[0]
+    assert grown.area - room.area == pytest.approx(1.0 * 2.5 + 1.0 * 1.0, rel=0.05)
+    assert min(grown.polygon[:, 1]) == pytest.approx(0.5, abs=0.1)
+    assert any("grown to contain 2 camera positions" in w for w in st.warnings)
+
+
+def test_cameras_do_not_change_a_room_whose_ceiling_was_seen():
+    m = room_mesh([box_room()])
+    far = np.array([[9.0, 9.0, 1.4]])  # wherever they are, a seen ceiling outlines the room
+    a, b = estimate_structure(*_vf(m)), estimate_structure(*_vf(m), cameras=far)
+    assert not b.ceiling_estimated and b.grid == a.grid
+    assert np.array_equal(a.rooms[0].polygon, b.rooms[0].polygon)

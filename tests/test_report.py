@@ -186,3 +186,48 @@ def test_report_in_headless_chromium(report_run: Path, tmp_path: Path) -> None:
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body style='background:#fff'></body></html>")
     assert image_variance(screenshot(blank, tmp_path / "blank.png", width=200, height=100)) < 1.0
+
+
+def _layout_doc(ceiling: str, warnings: list[str]) -> dict:
+    return {
+        "ceiling": ceiling,
+        "floor_z": 0.0,
+        "ceiling_z": 2.3,
+        "rooms": [
+            {
+                "name": "room0",
+                "area": 17.3,
+                "floor_z": 0.0,
+                "ceiling_z": 2.3,
+                "ceiling": ceiling,
+                "walls": [{"index": 0}] * 4,
+                "openings": [],
+                "baseboard": None,
+            }
+        ],
+        "label_counts": {},
+        "notes": [],
+        "warnings": warnings,
+    }
+
+
+def test_layout_section_shows_an_estimated_ceiling_and_the_warnings(report_run: Path) -> None:
+    from reroom.report.sections import layout_section
+
+    warn = "room0: wall candidates cover 20 % of its outline <partial> & grown"
+    atomic_write_json(
+        report_run / "layout" / "layout.json", _layout_doc("estimated", ["no ceiling seen", warn])
+    )
+    html = layout_section(report_run, None)
+    assert "The ceiling was not seen" in html and "lower bound" in html
+    assert "<h3>Warnings</h3>" in html and "<li>no ceiling seen</li>" in html
+    # Plain text, escaped.
+    assert "20 % of its outline &lt;partial&gt; &amp; grown" in html and "<partial>" not in html
+    assert "<td>2.3 (estimated)</td>" in html
+    # The whole report carries it too.
+    assert "The ceiling was not seen" in write_report(report_run).read_text()
+    # A seen ceiling: no note, no warnings list, the plain height.
+    atomic_write_json(report_run / "layout" / "layout.json", _layout_doc("seen", []))
+    html = layout_section(report_run, None)
+    assert "not seen" not in html and "Warnings" not in html and "estimated" not in html
+    assert '<td class="num">2.3</td>' in html

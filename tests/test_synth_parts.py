@@ -164,3 +164,19 @@ def test_opening_reveals_face_into_the_opening() -> None:
                 to_axis = c - m.triangles_center
                 facing = np.einsum("ij,ij->i", m.face_normals, to_axis)
                 assert np.all(facing > 0), p.name
+
+
+def test_box_points_is_box_with_two_point_lights() -> None:
+    box_spec, points = build_preset("box"), build_preset("box_points")
+    np.testing.assert_array_equal(box_spec.rooms[0].polygon, points.rooms[0].polygon)
+    old = {light["name"] for light in box_spec.lights}
+    added = [light for light in points.lights if light["name"] not in old]
+    assert {light["type"] for light in box_spec.lights} == {"area", "window"}
+    assert sorted(light["name"] for light in added) == ["downlight", "floor_lamp"]
+    poly = points.rooms[0].polygon
+    for light in added:
+        assert light["type"] == "point"
+        x, y, z = light["position"]
+        assert point_in_polygon(np.array([x]), np.array([y]), poly).all()
+        assert points.rooms[0].floor_z < z < points.rooms[0].ceiling_z
+    assert {light["profile"] for light in added} == {"isotropic", "ies_light_1"}

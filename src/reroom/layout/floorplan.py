@@ -42,6 +42,20 @@ def polygon_area(poly: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
+def points_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Whether each point ``(N, 2)`` lies inside a polygon (even-odd rule)."""
+    x, y = np.asarray(xy, float).reshape(-1, 2).T
+    inside = np.zeros(len(x), bool)
+    n = len(poly)
+    for k in range(n):
+        (x0, y0), (x1, y1) = poly[k], poly[(k + 1) % n]
+        crosses = (y0 > y) != (y1 > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xint = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        inside ^= crosses & (x < xint)
+    return inside
+
+
 def simplify_rectilinear(poly: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     """Drop repeated and collinear vertices of a closed polygon."""
     p = np.asarray(poly, float)
@@ -446,3 +460,117 @@ def _longest_run(v: np.ndarray) -> int:
 def direction_of(normal: np.ndarray) -> int:
     """Index into :data:`DIRECTIONS` of an axis-aligned 2D normal."""
     return int(np.argmax(DIRECTIONS @ np.asarray(normal, float)))
+
+
+def extend_to_walls(
+    region: np.ndarray,
+    segments: list[Segment],
+    grid: FloorGrid,
+    reach: float,
+    min_len: float = 0.5,
+    close: float = 0.3,
+) -> np.ndarray:
+    """A partial room's floor coverage grown out to the wall candidates that face it.
+
+    A partial scan sees walls beyond the floor it covers (the floor in front of them is
+    hidden by furniture or lies outside the views). For each column of cells along a
+    segment of at least ``min_len`` metres, the cells from the wall inwards up to the
+    first covered cell are added when that cell lies within ``reach`` metres; a wall that
+    faces no coverage adds nothing. The result is closed by ``close`` metres (the gaps
+    between pieces of one wall) and its holes are filled.
+    """
+    out = region.copy()
+    steps = max(1, int(np.ceil(reach / grid.cell)))
+    for s in segments:
+        if s.length < min_len:
+            continue
+        ax = s.axis
+        sign = int(round(s.normal[ax]))
+        t = np.arange(s.lo + 0.5 * grid.cell, s.hi, grid.cell)
+        if len(t) == 0:
+            continue
+        pts = np.empty((len(t), 2))
+        pts[:, 1 - ax] = t
+        pts[:, ax] = s.offset + 0.5 * sign * grid.cell
+        i, j = grid.index(pts)
+        along = j if ax == 0 else i
+        start = i if ax == 0 else j
+        for a, k0 in zip(along, start, strict=True):
+            ks = k0 + sign * np.arange(steps + 1)
+            ks = ks[(ks >= 0) & (ks < grid.shape[ax])]
+            line = region[ks, a] if ax == 0 else region[a, ks]
+            hit = np.flatnonzero(line)
+            if len(hit) == 0:
+                continue
+            fill = ks[: hit[0] + 1]
+            if ax == 0:
+                out[fill, a] = True
+            else:
+                out[a, fill] = True
+    k = max(1, int(round(close / grid.cell)))
+    st = np.ones((2 * (k // 2) + 1, 2 * (k // 2) + 1), bool)
+    out = ndimage.binary_closing(out, st, border_value=0) | out
+    return ndimage.binary_fill_holes(out)
+
+
+def include_points(
+    region: np.ndarray,
+    points: np.ndarray,
+    segments: list[Segment],
+    grid: FloorGrid,
+    margin: float,
+    min_len: float = 0.5,
+) -> tuple[np.ndarray, list[float], list[float], int]:
+    """A region grown by axis-aligned rectangles until it contains the given points.
+
+    For the camera positions of a partial scan (projected to the floor): a capture is
+    taken from inside the room, but the floor right below and in front of the cameras is
+    often out of view, so the floor's coverage can start metres ahead of them. Each point
+    outside the region adds the rectangle spanning the point grown by ``margin`` metres
+    and the nearest cell of the region (nearest points first, so later ones can join the
+    earlier rectangles); a wall candidate of at least ``min_len`` metres that faces the point
+    and lies across the rectangle's extent clips it (never past the point or that cell),
+    so the room does not grow through a wall it saw. Returns the grown region, the x and
+    y lines of the rectangles' sides (to snap the outline to) and how many points were
+    outside.
+    """
+    out = np.asarray(region, bool).copy()
+    pts = np.asarray(points, float).reshape(-1, 2)
+    xs: list[float] = []
+    ys: list[float] = []
+    if not out.any() or len(pts) == 0:
+        return out, xs, ys, 0
+    centres = (grid.centres(0), grid.centres(1))
+    walls = [s for s in segments if s.length >= min_len]
+
+    def gap(p: np.ndarray) -> float:
+        ci, cj = np.nonzero(out)
+        return float(np.min(np.hypot(centres[0][ci] - p[0], centres[1][cj] - p[1])))
+
+    pi, pj = grid.index(pts)
+    away = pts[~out[pi, pj]]
+    for p in sorted(away, key=gap):
+        i, j = grid.index(p[None])
+        ci, cj = np.nonzero(out)
+        d = np.hypot(centres[0][ci] - p[0], centres[1][cj] - p[1])
+        k = int(np.argmin(d))
+        q = np.array([centres[0][ci[k]], centres[1][cj[k]]])
+        lo = np.minimum(p - margin, q)
+        hi = np.maximum(p + margin, q)
+        for s in walls:
+            ax = s.axis
+            sign = s.normal[ax]
+            if (p[ax] - s.offset) * sign <= 0:
+                continue  # the point is behind this wall: it does not bound the point
+            if s.hi <= lo[1 - ax] or s.lo >= hi[1 - ax]:
+                continue
+            if sign > 0:
+                lo[ax] = max(lo[ax], min(s.offset, p[ax], q[ax]))
+            else:
+                hi[ax] = min(hi[ax], max(s.offset, p[ax], q[ax]))
+        sel = [(c >= a) & (c <= b) for c, a, b in zip(centres, lo, hi, strict=True)]
+        out[np.ix_(sel[0], sel[1])] = True
+        out[i[0], j[0]] = True
+        xs.extend([float(lo[0]), float(hi[0])])
+        ys.extend([float(lo[1]), float(hi[1])])
+    return out, xs, ys, len(away)

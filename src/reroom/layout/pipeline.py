@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -86,6 +86,10 @@ class LayoutOptions:
         metadata, else 2.2).
     figure, empty_room:
         Write the floorplan picture and the empty-room mesh.
+    partial_min_seen:
+        In a room outlined without a seen ceiling (a partial scan), openings and
+        baseboards are kept only on walls whose length is covered by wall candidates at
+        least this much: elsewhere the outline is the edge of the floor's coverage.
     """
 
     structure: StructureOptions = field(default_factory=StructureOptions)
@@ -102,6 +106,7 @@ class LayoutOptions:
     gamma: float | None = None
     figure: bool = True
     empty_room: bool = True
+    partial_min_seen: float = 0.5
 
 
 @dataclass
@@ -230,7 +235,9 @@ def layout_scan(
 
     t = _now()
     progress("structure", 0, 1)
-    st = estimate_structure(v, f, opt.structure)
+    # Camera positions: a partial room (no ceiling seen) is grown to contain them.
+    cams = np.array([fr.center for fr in scan.frames]) if scan.frames else None
+    st = estimate_structure(v, f, opt.structure, cams)
     progress("structure", 1, 1)
     _lap(timings, cpu, "structure", t)
 
@@ -309,6 +316,12 @@ def layout_scan(
             for k in range(len(walls)):
                 doors += ft.combine_doors(ft.find_doors(grids, k), ft.find_recessed_doors(grids, k))
         openings = ft.merge_openings(doors, holes)
+        if st.ceiling_estimated:
+            # A partial room: where no wall was seen the outline follows the edge of
+            # the floor's coverage; rays cross it freely, which is no window or passage,
+            # and no baseboard stands there.
+            seen = np.concatenate([room.seen for room in st.rooms])
+            openings = [o for o in openings if seen[o.wall] >= opt.partial_min_seen]
         ft.measure_depths(openings, st.xyz, st.normals, walls, grids)
         spans = None
         if opt.features:
@@ -317,6 +330,10 @@ def layout_scan(
                 baseboard = ft.measure_baseboard(
                     height, grids, st.xyz, st.normals, st.floor.z, profile, heights
                 )
+                if st.ceiling_estimated:
+                    keep = [k for k in baseboard.walls if seen[k] >= opt.partial_min_seen]
+                    baseboard = replace(baseboard, walls=keep) if keep else None
+            if baseboard is not None:
                 spans = baseboard_pieces(baseboard, walls, openings)
         labels = ft.label_features(
             labels, st.xyz, walls, openings, baseboard, st.floor.z, tol, spans
@@ -378,6 +395,8 @@ def layout_document(
                 "area": round(room.area, 4),
                 "floor_z": round(st.floor.z, 4),
                 "ceiling_z": round(st.ceiling.z, 4),
+                "ceiling": "estimated" if st.ceiling_estimated else "seen",
+                "wall_support": round(room.support, 4),
                 "walls": [
                     {
                         "index": w["index"],
@@ -385,8 +404,9 @@ def layout_document(
                         "end": np.round(w["end"], 4).tolist(),
                         "inward_normal": np.round(w["inward_normal"], 6).tolist(),
                         "length": round(w["length"], 4),
+                        "seen": round(float(seen), 4),
                     }
-                    for w in room.walls
+                    for w, seen in zip(room.walls, room.seen, strict=True)
                 ],
                 "openings": ops,
                 "baseboard": bb,
@@ -404,11 +424,13 @@ def layout_document(
         "normals_flipped": st.normals_flipped,
         "floor_z": round(st.floor.z, 4),
         "ceiling_z": round(st.ceiling.z, 4),
+        "ceiling": "estimated" if st.ceiling_estimated else "seen",
         "wall_threshold": round(st.threshold, 3),
         "rooms": rooms,
         "labels": dict(LAYOUT_LABELS),
         "label_counts": counts,
         "notes": list(st.notes),
+        "warnings": list(st.warnings),
     }
 
 

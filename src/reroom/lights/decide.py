@@ -16,7 +16,7 @@ from reroom.lights.room import RoomModel
 if TYPE_CHECKING:
     from reroom.lights.detect import LightsOptions
 
-__all__ = ["decide", "evidence", "make_light", "radiance_text", "window_light"]
+__all__ = ["ceiling_estimated", "decide", "evidence", "make_light", "radiance_text", "window_light"]
 
 
 def evidence(comp: Component, aligned: np.ndarray, up: np.ndarray, room: RoomModel) -> dict:
@@ -54,7 +54,13 @@ def decide(
         return ("reject", f"rejected: {n} vertices < {opt.min_vertices}", "small")
     c_al = room.to_aligned(comp.centroid)
     inside = room.inside(c_al[None, :2], opt.room_margin)[0]
-    if not inside or not (room.floor_z - 0.1 <= c_al[2] <= room.ceiling_z + 0.1):
+    # With a seen ceiling nothing above it is in the room. An estimated ceiling (none
+    # seen: a partial scan, layout.json `"ceiling": "estimated"`) is only a lower bound,
+    # the highest wall points observed, and a ceiling light sits at the true ceiling,
+    # possibly above it. A bright surface seen above it inside the room's outline shows
+    # that the ceiling is at least that high, so there only the floor bounds the height.
+    top = np.inf if ceiling_estimated(room) else room.ceiling_z + 0.1
+    if not inside or not (room.floor_z - 0.1 <= c_al[2] <= top):
         return (
             "reject",
             f"rejected: outside the room (centroid {np.round(comp.centroid, 2).tolist()})",
@@ -140,6 +146,12 @@ def decide(
         f"kept: point light, a compact bright blob {length:.2f} m across, {radiance_text(ev)}",
         "point",
     )
+
+
+def ceiling_estimated(room: RoomModel) -> bool:
+    """Whether the layout estimated the ceiling rather than seeing it (a room with
+    ``"ceiling": "estimated"``, ``docs/layout.md`` step 4b): its height is a lower bound."""
+    return any(r.get("ceiling") == "estimated" for r in room.rooms)
 
 
 def radiance_text(ev: dict) -> str:

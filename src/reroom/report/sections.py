@@ -180,18 +180,30 @@ def layout_section(run: Path, scan: Scan) -> str:
     for r in doc.get("rooms", []):
         kinds = Counter(o.get("kind", "?") for o in r.get("openings", []))
         bb = r.get("baseboard") or {}
+        ceiling = r.get("ceiling_z")
+        if r.get("ceiling") == "estimated":
+            ceiling = f"{fmt(ceiling)} (estimated)"
         rows.append(
             [
                 r.get("name"),
                 r.get("area"),
                 r.get("floor_z"),
-                r.get("ceiling_z"),
+                ceiling,
                 len(r.get("walls", [])),
                 ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) or "none",
                 bb.get("height"),
             ]
         )
     html = ""
+    if doc.get("ceiling") == "estimated":
+        html += (
+            '<p class="note">The ceiling was not seen: its height is estimated (a lower '
+            "bound, from the highest wall points observed) and the rooms are partial, "
+            "outlined on the floor the scan covered and the walls it found.</p>"
+        )
+    warnings = doc.get("warnings") or []
+    if warnings:
+        html += "<h3>Warnings</h3><ul>" + "".join(f"<li>{esc(w)}</li>" for w in warnings) + "</ul>"
     if (lay / "floorplan.png").is_file():
         html += figure(lay / "floorplan.png", "floorplan (top view, aligned frame)", MAX_WIDTH)
     html += table(

@@ -1,4 +1,11 @@
-"""Scene presets: ``box``, ``furnished``, ``lshape`` and ``tworooms``.
+"""Scene presets: ``box``, ``box_points``, ``furnished``, ``lshape`` and ``tworooms``.
+
+``box`` is an empty 5 x 4 x 2.7 m room with a ceiling panel and a window;
+``box_points`` is the same room with two point lights added (for light localization):
+a floor lamp (isotropic bulb in a fabric shade) in a corner and a recessed downlight
+(no visible fitting, the ``ies_light_1`` profile). ``furnished`` has every light type
+(panel, baffled tube, floor lamp, IES downlight, window) and furniture; ``lshape`` and
+``tworooms`` test non-rectangular and multi-room layouts.
 
 Each preset is a :class:`SceneSpec`: the parts (geometry + label + material +
 emission), the light list with every parameter, the layout, the outdoor
@@ -15,7 +22,7 @@ import numpy as np
 from reroom.synth.geometry import Part, Piece, box, cylinder, frustum_shell, grid_rect
 from reroom.synth.room import Opening, RoomSpec, build_room, room_layout
 
-PRESETS = ("box", "furnished", "lshape", "tworooms")
+PRESETS = ("box", "box_points", "furnished", "lshape", "tworooms")
 
 #: Linear diffuse albedos per surface class (measured paint/wood values are in this range).
 MATERIALS: dict[str, dict] = {
@@ -265,7 +272,7 @@ def build_preset(name: str, hdri: str = "courtyard", mesh_spacing: float = 0.08)
     h = mesh_spacing
     warm = [1.0, 0.82, 0.62]
     cool = [0.92, 0.97, 1.0]
-    if name == "box":
+    if name in ("box", "box_points"):
         room = RoomSpec(
             np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
             0.0,
@@ -274,11 +281,19 @@ def build_preset(name: str, hdri: str = "courtyard", mesh_spacing: float = 0.08)
             "room",
         )
         panel_parts, panel = _panel("ceiling_panel", 2.2, 2.8, 1.7, 2.3, 2.7, h, [6.0, 6.0, 6.0])
+        box_parts, box_lights = list(panel_parts), [panel]
+        if name == "box_points":
+            p, light = _floor_lamp("floor_lamp", 4.45, 3.45, h, 10.0, warm)
+            box_parts += p
+            box_lights.append(light)
+            p, light = _downlight("downlight", 1.2, 1.0, 2.7, "ies_light_1", 8.0, cool)
+            box_parts += p
+            box_lights.append(light)
         return _assemble(
             name,
             [room],
-            panel_parts,
-            [panel],
+            box_parts,
+            box_lights,
             [[1.3, 1.2], [3.7, 1.2], [3.7, 2.8], [1.3, 2.8]],
             hdri,
             h,
