@@ -14,7 +14,8 @@ reads ``ground_truth/``, which the estimate never does.
     ``reroom invert`` with one input swapped for the truth's at a time (HDR or true
     radiance, detected or true lights, true radiance where the HDR mesh is observed), then
     the same eq. 5.7 problem re-solved with the receivers' ``Lbar`` or their ``E_ind``
-    taken from the truth: cluster-albedo and light-power errors per row.
+    taken from the truth, or with the window's cube cells fixed to the truth's:
+    cluster-albedo and light-power errors per row.
 ``--indirect``
     ``E_ind`` from the true radiance (512 hemisphere rays) against the path tracer's
     indirect irradiance ``pi (L - L_direct) / rho``, ``L_direct`` rendered at depth 2.
@@ -203,13 +204,47 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
     truth_rho = np.stack([true_albedo[label == CLUSTERS[c]].mean(axis=0) for c in ph.cluster_names])
     print(f"\nre-solves of the HDR run's problem (k = {np.round(k, 3).tolist()}), albedo error:\n")
     print("| re-solve | " + " | ".join(ph.cluster_names) + " |\n|---|---|---|---|")
-    for name, prob in [
+    variants = [
         ("as solved", ph),
         ("Lbar from the truth (x k)", dataclasses.replace(ph, radiance=pt.radiance * k)),
         ("E_ind from the truth (x k)", dataclasses.replace(ph, indirect=pt.indirect * k)),
-    ]:
+    ]
+    fixed = _window_from_truth(scan, ph, k)
+    if fixed is not None:
+        variants.append(("window cells fixed to the truth's (x k)", fixed))
+    for name, prob in variants:
         r = solve_lighting(prob, solve)
         print(f"| {name} | " + " | ".join(_pct(x) for x in r.albedo / truth_rho - 1) + " |")
+
+
+def _window_from_truth(scan: Path, problem, k: np.ndarray):
+    """``problem`` with its (first) window's light moved into ``E_ind`` at the true cells.
+
+    The true HDRI averaged per cube cell over the directions through the window
+    (:func:`reroom.invert.evaluate.true_window_cells`), times ``k``; None without a window.
+    """
+    import scipy.sparse as sp
+
+    from reroom.invert.evaluate import true_window_cells
+
+    gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
+    true_wins = [x for x in gt.get("lights", []) if x["type"] == "window"]
+    blocks = [i for i, b in enumerate(problem.lights) if b.kind == "window"]
+    if not true_wins or not blocks:
+        return None
+    wi = blocks[0]
+    n = int(round(np.sqrt(problem.lights[wi].size / 6)))
+    cells, _ = true_window_cells(true_wins[0], scan / "ground_truth" / "scene", n=n)
+    off = np.concatenate([[0], np.cumsum([b.size for b in problem.lights])]).astype(int)
+    f = sp.csr_matrix(problem.transfer)
+    e_win = np.asarray(f[:, off[wi] : off[wi + 1]] @ (cells * k))
+    keep = np.r_[0 : off[wi], off[wi + 1] : f.shape[1]]
+    return dataclasses.replace(
+        problem,
+        indirect=problem.indirect + e_win,
+        transfer=f[:, keep],
+        lights=[b for i, b in enumerate(problem.lights) if i != wi],
+    )
 
 
 def indirect(scan: Path, work: Path) -> None:

@@ -108,7 +108,7 @@ class InvertOptions:
     fixture_margin: float = 0.05
     receiver_inset: float = 0.0
     near_distance: float = 0.05
-    near_max_fraction: float = 0.05
+    near_max_fraction: float = 0.15
     min_bin_support: float = 0.01
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
