@@ -74,7 +74,24 @@ def main() -> None:
     ap.add_argument("--window-cells", type=int, default=4, help="cube-map cells per face side")
     ap.add_argument("--min-gain", type=float, default=0.15, help="discovery stopping threshold")
     ap.add_argument(
+        "--discovery",
+        default="joint",
+        choices=("joint", "fixed"),
+        help="discovery score: other lights refitted, robust weights (joint) or fixed",
+    )
+    ap.add_argument(
+        "--no-search-albedo-update",
+        action="store_true",
+        help="keep the robust-minimum albedos during the search",
+    )
+    ap.add_argument(
         "--profile-gain", type=float, default=0.2, help="goniometric test threshold (1: off)"
+    )
+    ap.add_argument(
+        "--height-bins", type=int, default=64, help="bins of the goniometric height search"
+    )
+    ap.add_argument(
+        "--no-mount-test", action="store_true", help="keep the goniometric test's best height"
     )
     ap.add_argument("--json", type=Path, help="also write the results here")
     args = ap.parse_args()
@@ -82,7 +99,11 @@ def main() -> None:
         classes=tuple(int(c) for c in args.classes.split(",")),
         window_cells=args.window_cells,
         min_gain=args.min_gain,
+        discovery=args.discovery,
+        search_albedo_update=not args.no_search_albedo_update,
         profile_gain=args.profile_gain,
+        height_bins=args.height_bins,
+        mount_test=not args.no_mount_test,
     )
     out = []
     for scan in args.scans:
@@ -121,6 +142,11 @@ def main() -> None:
             if g is not None:
                 print(f"light {k}: goniometric, moved {g['moved_m']:.2f} m (soft-L1 cost "
                       f"{g['cost_goniometric']:.0f} vs {g['cost_isotropic']:.0f} isotropic)")  # fmt: skip
+                m = g.get("mount")
+                if m is not None:
+                    print(f"  mount test: upward flux {100 * m['upward_flux']:.1f}%, "
+                          f"{m.get('fitting_vertices', '-')} fitting vertices, cost ratio "
+                          f"{m.get('cost_ratio', float('nan')):.3f}: {m['reason']}")  # fmt: skip
         print(f"target met: {ev['target_met']}   (load {os.getloadavg()[0]:.1f})")
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))

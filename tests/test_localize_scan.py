@@ -24,6 +24,8 @@ from reroom.localize.scan import (
     LOCALIZED_REASON,
     ScanLocalizeOptions,
     ScanLocalizeResult,
+    _discovery_gain,
+    _mount_test,
     localize_into_lights,
     localize_scan,
     merge_localized_lights,
@@ -165,3 +167,92 @@ def test_merge_replaces_detected_and_keeps_user_lights(localized, room_scan: Pat
     # Merging again replaces the localized lights in place instead of adding more.
     merge_localized_lights(back, res, info)
     assert [x.name for x in back.lights] == names
+
+
+def _mount_case(
+    profile_up: bool = False, pendant: bool = False, side: bool = False, top_ratio: float = 1.02
+):
+    """A 4 x 3 x 2.5 m room, a light tested along the vertical x = 2, y = 1.5 whose costs
+    are lowest at 1.8 m and ``top_ratio`` times that just under the ceiling."""
+    room = trimesh.creation.box(extents=SIZE)
+    room.apply_translation(SIZE / 2)
+    if pendant:  # a 0.2 m shade above the light
+        shade = trimesh.creation.box(extents=[0.2, 0.2, 0.2])
+        shade.apply_translation([2.0, 1.5, 1.95])
+        room = trimesh.util.concatenate([room, shade])
+    if side:  # a body beside the light, not straight above it (an arm, a side shade)
+        arm = trimesh.creation.box(extents=[0.1, 0.1, 0.3])
+        arm.apply_translation([2.2, 1.5, 2.0])
+        room = trimesh.util.concatenate([room, arm])
+    heights = np.arange(0.5, 2.48, 0.05)
+    cands = np.column_stack([np.full_like(heights, 2.0), np.full_like(heights, 1.5), heights])
+    costs = 100.0 * (1.0 + (top_ratio - 1.0) * ((heights - 1.8) / (heights[-1] - 1.8)) ** 2)
+    bins = 64
+    edges = np.linspace(0.0, np.pi, bins + 1)
+    solid = 2.0 * np.pi * (np.cos(edges[:-1]) - np.cos(edges[1:]))
+    profile = np.ones(bins) if profile_up else np.r_[np.zeros(bins // 2), np.ones(bins // 2)]
+    best = int(np.argmin(costs))
+    return _mount_test(
+        RayCaster(room), np.asarray(room.vertices), cands, costs, profile, best, solid,
+        ScanLocalizeOptions(),
+    ), cands  # fmt: skip
+
+
+def test_mount_test_moves_unshaded_downlight_to_the_ceiling():
+    res, cands = _mount_case()
+    assert res["mounted"], res
+    assert res["upward_flux"] == 0.0
+    assert res["surface_above_z"] == pytest.approx(2.5)
+    assert 2.4 <= cands[res["index"], 2] < 2.5
+    assert res["cost_ratio"] <= 1.1
+
+
+def test_mount_test_keeps_lights_that_light_upwards_or_have_a_fitting():
+    up, _ = _mount_case(profile_up=True)
+    assert not up["mounted"] and up["upward_flux"] == pytest.approx(0.5)
+    # A pendant's shade is the body above: the light stays under it, not at the ceiling.
+    shade, cands = _mount_case(pendant=True)
+    assert shade["surface_above_z"] == pytest.approx(1.85), shade
+    assert not shade["mounted"] or cands[shade["index"], 2] < 1.85, shade
+    beside, _ = _mount_case(side=True)
+    assert not beside["mounted"] and beside["fitting_vertices"] > 0, beside
+    assert beside["surface_above_z"] == pytest.approx(2.5)
+    rejected, _ = _mount_case(top_ratio=1.5)
+    assert not rejected["mounted"] and rejected["cost_ratio"] > 1.1, rejected
+
+
+def test_discovery_gain_refits_the_known_lights():
+    # A window-like known column overlaps the point light's: fitted alone first, it
+    # absorbs part of the light's signal. With the known column refitted, the light
+    # explains all that is left, at its true intensity; against the fixed residual, less.
+    rng = np.random.default_rng(3)
+    s = rng.random((300, 4))
+    known = (0.6 * s[:, 0] + 0.4 * rng.random(300))[:, None]
+    b = 2.0 * s[:, 0] + 1.5 * known[:, 0]
+    r = b - known[:, 0] * float(known[:, 0] @ b) / float(known[:, 0] @ known[:, 0])
+    gain, start = _discovery_gain(s, r, known, scale=1e6)  # huge scale: plain least squares
+    assert int(np.argmax(gain)) == 0
+    assert gain[0] == pytest.approx(1.0)
+    assert start[0] == pytest.approx(2.0)
+    fixed = float(s[:, 0] @ r) ** 2 / float(s[:, 0] @ s[:, 0]) / float(r @ r)
+    assert fixed < 0.9
+    # Nothing known: the plain share; a candidate anti-correlated with r gains nothing.
+    g0, _ = _discovery_gain(s, r, np.zeros((300, 0)), scale=1e6)
+    assert g0[0] == pytest.approx(fixed)
+    g1, st1 = _discovery_gain(-s, r, np.zeros((300, 0)), scale=1e6)
+    assert g1[0] == 0.0 and st1[0] == 0.0
+
+
+def test_discovery_gain_weighs_outliers_down():
+    # A few huge residuals (a fixture's bleeding) that a candidate would explain do not
+    # make it win against the light that explains the rest (soft-L1 weights).
+    rng = np.random.default_rng(4)
+    s = rng.random((400, 2))
+    spot = np.zeros(400)
+    spot[:5] = 1.0
+    s[:, 1] = spot
+    r = 0.5 * s[:, 0] + 10.0 * spot
+    gain, _ = _discovery_gain(s, r, np.zeros((400, 0)), scale=0.1)
+    assert int(np.argmax(gain)) == 0, gain
+    plain, _ = _discovery_gain(s, r, np.zeros((400, 0)), scale=1e9)
+    assert int(np.argmax(plain)) == 1, plain

@@ -580,10 +580,10 @@ def run_command(
     localize: Annotated[
         bool,
         typer.Option(
-            help="Also localize point lights from the lit walls (thesis ch. 6) and hand them "
-            "to the inverse rendering (adds 30-80 s; see docs/localize.md)."
+            help="Localize point lights from the lit walls (thesis ch. 6) and hand them "
+            "to the inverse rendering (adds 20-80 s; see docs/localize.md)."
         ),
-    ] = False,
+    ] = True,
 ) -> None:
     """Every stage end to end (HDR, layout, lights, invert, renders, edits) and report.html.
 

@@ -91,8 +91,11 @@ class RunOptions:
         After detecting lights, localize point lights from the lit walls and ceiling
         (``reroom localize --into-lights``, thesis ch. 6) and merge them into
         ``lights.json``, so that lights with no visible emitter (a recessed downlight)
-        reach the inverse rendering. Off by default: it adds 30-80 s on a small scan and
-        misses the downlight's height by 6-8 % of the room's size (docs/localize.md).
+        reach the inverse rendering. On by default (it adds 20-80 s on a small scan):
+        without it nothing places point lights that have no visible emitter, and the
+        inverse rendering pushes their light into the albedos (the 24-frame demo scan:
+        wall +24-28 % and floor +51-79 % without, +3-4 % and +3-10 % with;
+        docs/run.md). ``--no-localize`` skips it.
     """
 
     out_dir: Path | None = None
@@ -104,7 +107,7 @@ class RunOptions:
     invert_rays: int = 512
     invert_voxel: float = 0.1
     evaluate: bool = True
-    localize: bool = False
+    localize: bool = True
 
 
 @dataclass
