@@ -11,7 +11,13 @@ lights/ and ground truth, evaluated by :func:`reroom.invert.evaluate.evaluate_in
 against the issue's targets (albedo within 3 %, power within 5 %, point and line
 distributions within 10 % relative L2).
 
+Part 3 (``--speed DIR``): ``reroom invert`` on a scan with hdr/, layout/ and lights/ (no
+ground truth needed), e.g. the 208k-vertex paper-scale scan of ``bench_hdr.py --speed``:
+wall and CPU time per step, the ray budget, and the ratio to the 2016 paper's 15-30 min
+of inverse lighting and to the issue's 60 s target for transfer + solve.
+
     .venv/bin/python benchmarks/bench_invert.py [--n 20000] [--scan DIR] [--true-radiance]
+    .venv/bin/python benchmarks/bench_invert.py --speed DIR --skip-solvers
 """
 
 from __future__ import annotations
@@ -132,16 +138,75 @@ def scan_table(scan: str, true_radiance: bool) -> None:
     print(f"\nper-vertex albedo: {ev['per_vertex']}; missed lights: {ev['missed_lights']}\n")
 
 
+def speed_table(scan: str, out: str | None = None) -> None:
+    """Time ``reroom invert`` on ``scan``: per step, rays, and the ratios to the targets."""
+    import tempfile
+    from pathlib import Path
+
+    from reroom.invert.pipeline import InvertOptions, run_invert
+
+    opts = InvertOptions(pictures=False)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = run_invert(scan, Path(out) if out else Path(tmp) / "invert", opts)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        import json
+
+        meta = json.loads((res.out_dir / "report.json").read_text())
+    tm = res.timings
+    n_v = len(res.albedo)
+    recv = int(meta.get("receivers", 0))
+    hemi = int(meta.get("hemisphere_receivers", 0))
+    clustered = int(meta.get("clustered", 0))
+    kinds = [b.kind for b in res.lights]
+    rays = {
+        "hemisphere": hemi * opts.rays_per_receiver,
+        "area lights": recv * opts.area_samples * kinds.count("area"),
+        "point lights": recv * kinds.count("point"),
+        "line lights": recv * opts.line_segments * kinds.count("line"),
+        "near filter": clustered * 64,
+    }
+    solve_only = tm["solve"] - tm.get("near_filter", 0.0)
+    transfer_solve = tm["hemisphere_transfer"] + tm["direct_transfer"] + tm["solve"]
+    print(f"\n## reroom invert speed: {scan}\n")
+    print(
+        f"{n_v} vertices, {recv} receivers ({hemi} hemisphere receivers), "
+        f"{clustered} clustered; lights: {', '.join(kinds)}; {os.cpu_count()} CPUs, "
+        f"load {os.getloadavg()[0]:.1f} at the end\n"
+    )
+    print("| step | wall s |\n|---|---|")
+    for key in ("load", "hemisphere_transfer", "direct_transfer", "near_filter", "per_vertex"):
+        if key in tm:
+            print(f"| {key} | {tm[key]:.1f} |")
+    print(f"| solve (without the near filter) | {solve_only:.1f} |")
+    print(f"| outputs | {wall - tm['total']:.1f} |")
+    print(f"| **whole run_invert** | **{wall:.1f}** (CPU {cpu:.1f} s) |")
+    print("\n| rays | count |\n|---|---|")
+    for key, value in rays.items():
+        print(f"| {key} | {value / 1e6:.2f} M |")
+    print(f"| total | {sum(rays.values()) / 1e6:.2f} M |")
+    print(
+        f"\ntransfer + solve: {transfer_solve:.1f} s, {transfer_solve / 60:.2f} of the 60 s "
+        f"target; the paper's 15-30 min of inverse lighting / ours: "
+        f"{900 / transfer_solve:.0f}-{1800 / transfer_solve:.0f}x"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--n", type=int, default=5000)
     ap.add_argument("--scan", default=None)
     ap.add_argument("--true-radiance", action="store_true")
+    ap.add_argument("--speed", default=None, help="scan to time reroom invert on")
+    ap.add_argument("--skip-solvers", action="store_true", help="no part 1")
     args = ap.parse_args()
-    solver_table(args.n)
-    huber_table(args.n)
+    if not args.skip_solvers:
+        solver_table(args.n)
+        huber_table(args.n)
     if args.scan:
         scan_table(args.scan, args.true_radiance)
+    if args.speed:
+        speed_table(args.speed)
 
 
 if __name__ == "__main__":

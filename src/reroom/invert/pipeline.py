@@ -416,6 +416,7 @@ def run_invert(
     rows = np.flatnonzero(in_cluster)
     near = np.zeros(len(receivers), dtype=bool)
     if options.near_distance > 0 and len(rows):
+        t_near = time.perf_counter()
         blocked = near_occlusion(
             caster, mesh, receivers[rows], n_recv[rows], options.near_distance, seed=options.seed
         )
@@ -427,6 +428,7 @@ def run_invert(
                 "lighting solve"
             )
         rows = rows[~near[rows]]
+        timings["near_filter"] = time.perf_counter() - t_near
     cluster = np.array([cluster_of_label[x] for x in rec_labels[rows]], dtype=int)
     problem = InverseProblem(
         radiance=radiance[receivers[rows]],
