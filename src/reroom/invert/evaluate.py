@@ -458,7 +458,14 @@ def _seen_bins(scan: Path, out: Path, est: dict) -> dict[str, np.ndarray]:
         basis = InclinationBasis(int(e["distribution"]["bins"]))
         if e["type"] == "point":
             f = point_light_transfer(
-                caster, p, n, np.asarray(g["position"], float), np.asarray(g["axis"], float), basis
+                caster,
+                p,
+                n,
+                np.asarray(g["position"], float),
+                np.asarray(g["axis"], float),
+                basis,
+                # runs from before the option existed used the transfer's own default
+                clearance=float(opts.get("point_clearance", 0.02)),
             )
         else:
             f = line_light_transfer(

@@ -76,6 +76,14 @@ class InvertOptions:
         to this fraction of its mean edge length (:func:`reroom.invert.transfer.
         inset_points`), away from seams where shadow rays start in the plane of the
         neighbouring surface. Off (0) by default: measured worse (docs/invert.md).
+    point_clearance : float
+        Metres around a point light inside which nothing shadows it
+        (:func:`reroom.invert.direct.point_light_transfer`'s ``clearance``): its
+        fixture (a lamp's shade, a downlight's can) is then part of the solved
+        distribution -- the light as seen from outside the fixture, as the thesis's
+        generalized point light -- instead of geometry in the shadow rays. A fused scan
+        closes a shade's openings and a recess around its bulb; with a 2 cm clearance
+        the lamp then lights nothing and its light goes into the albedos (docs/invert.md).
     near_distance : float
         Metres. Clustered receivers whose hemisphere is blocked within this distance
         (seams, contact gaps: :mod:`reroom.invert.receivers`) by more than
@@ -107,6 +115,7 @@ class InvertOptions:
     area_samples: int = DEFAULT_AREA_SAMPLES
     fixture_margin: float = 0.05
     receiver_inset: float = 0.0
+    point_clearance: float = 0.3
     near_distance: float = 0.05
     near_max_fraction: float = 0.15
     min_bin_support: float = 0.01
@@ -382,6 +391,7 @@ def run_invert(
                 np.asarray(g["position"], float),
                 np.asarray(g["axis"], float),
                 incl,
+                clearance=options.point_clearance,
             )
         elif light.type == "line":
             f = line_light_transfer(
