@@ -14,7 +14,10 @@ renders it.
   the light ends half-way into its rim triangles as in the transfer), emitting the solved
   radiance on their front side.
 * **Windows**: a black rectangle on the window's opening carrying a ``reroom_portal``
-  emitter that shows the solved distant light (``window_<name>.exr``).
+  emitter that shows the window's map ``environment_exr`` (``window_<name>.exr``: the
+  solved cube-map cells shaped within each cell by the photos' pixels seen through the
+  opening, :mod:`reroom.invert.window_env`; the plain cells are
+  ``window_<name>_cells.exr``).
 * **Point lights**: ``reroom_goniometric`` with the solved inclination profile about the
   light's axis (``interpolation`` between bin centres, or constant per bin as solved).
 * **Line lights**: ``reroom_line`` with the solved profile around the line.

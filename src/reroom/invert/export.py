@@ -25,6 +25,7 @@ __all__ = [
     "inclination_power",
     "latlong_from_cubemap",
     "line_light_power",
+    "window_photo_maps",
     "window_power",
     "write_outputs",
 ]
@@ -209,10 +210,23 @@ def fill_poorly_seen(profile: np.ndarray, support: np.ndarray, min_fraction: flo
     return np.where(support > 1e-12 * top, filled, 0.0)
 
 
-def light_entries(result, out: Path | None, min_bin_support: float = 0.01) -> list[dict[str, Any]]:
-    """The ``lights`` list of ``scene.json`` (and the files it references, if ``out``)."""
+def light_entries(
+    result,
+    out: Path | None,
+    min_bin_support: float = 0.01,
+    window_maps: dict[str, tuple[np.ndarray, dict[str, Any]]] | None = None,
+) -> list[dict[str, Any]]:
+    """The ``lights`` list of ``scene.json`` (and the files it references, if ``out``).
+
+    ``window_maps`` gives, by window name, the rendering map built from the photos
+    (:mod:`reroom.invert.window_env`) and its figures: it is written as
+    ``window_<name>.exr`` (what the renderer shows) and the plain cube-map picture of the
+    cells as ``window_<name>_cells.exr``. Windows without one get the cube-map picture as
+    ``window_<name>.exr`` (and the same as ``_cells``).
+    """
     entries = []
     basis = CubemapBasis(result.cubemap_n)
+    window_maps = window_maps or {}
     for block, info in zip(result.lights, result.light_info, strict=True):
         g = info["geometry"]
         values = result.solve.intensities[block.name]
@@ -232,8 +246,14 @@ def light_entries(result, out: Path | None, min_bin_support: float = 0.01) -> li
             e["power"] = window_power(values, basis, n_in, _window_area(g)).tolist()
             if out is not None:
                 ll = latlong_from_cubemap(values, basis)
-                write_exr(out / f"window_{block.name}.exr", ll)
+                write_exr(out / f"window_{block.name}_cells.exr", ll)
+                photo = window_maps.get(block.name)
+                write_exr(out / f"window_{block.name}.exr", ll if photo is None else photo[0])
                 e["environment_exr"] = f"window_{block.name}.exr"
+                e["environment_cells_exr"] = f"window_{block.name}_cells.exr"
+                e["environment_source"] = "photos+cells" if photo is not None else "cells"
+                if photo is not None:
+                    e["environment_photos"] = photo[1]
         else:
             solved = np.asarray(result.solve.profiles[block.name], np.float64)
             support = info.get("support")
@@ -271,11 +291,67 @@ def light_entries(result, out: Path | None, min_bin_support: float = 0.01) -> li
     return entries
 
 
+def window_photo_maps(
+    result, mesh: trimesh.Trimesh, scan_dir: str | Path, height: int = 128
+) -> tuple[dict[str, tuple[np.ndarray, dict[str, Any]]], list[str]]:
+    """Rendering maps of the result's windows from the scan's photos, by window name.
+
+    See :mod:`reroom.invert.window_env`. Returns the maps with their figures, and notes
+    for the report (frames skipped; an empty dict with a note when it cannot be done,
+    e.g. a scan without ``hdr/exposures.json``: the windows then render their cells).
+    """
+    from reroom.errors import ReroomError
+    from reroom.invert.window_env import photo_environments
+    from reroom.invert.windows import WindowOpening
+
+    wins = []
+    for block, info in zip(result.lights, result.light_info, strict=True):
+        if block.kind != "window":
+            continue
+        g = info["geometry"]
+        opening = WindowOpening(
+            block.name, *(np.asarray(g[k], float) for k in ("centre", "half_u", "half_v", "normal"))
+        )
+        wins.append((block.name, opening, np.asarray(result.solve.intensities[block.name])))
+    if not wins:
+        return {}, []
+    basis = CubemapBasis(result.cubemap_n)
+    try:
+        maps, infos, stats = photo_environments(
+            scan_dir, mesh, [(o, c) for _, o, c in wins], basis, height=height
+        )
+    except (ReroomError, OSError, ValueError) as exc:
+        return {}, [f"window photos: not used, the windows render their cells ({exc})"]
+    notes = list(stats["notes"])
+    frames = {k: stats[k] for k in ("frames", "frames_used", "frames_no_exposure")}
+    frames["frames_unreadable"] = len(stats["frames_unreadable"])
+    return {
+        name: (env, {**info, **frames, "height": height})
+        for (name, _, _), env, info in zip(wins, maps, infos, strict=True)
+    }, notes
+
+
 def write_outputs(
-    result, mesh: trimesh.Trimesh, out: Path, meta: dict[str, Any], pictures: bool = True
+    result,
+    mesh: trimesh.Trimesh,
+    out: Path,
+    meta: dict[str, Any],
+    pictures: bool = True,
+    window_photos: bool | None = None,
 ) -> Path:
-    """Write every output of ``reroom invert`` into ``out``; returns ``scene.json``'s path."""
+    """Write every output of ``reroom invert`` into ``out``; returns ``scene.json``'s path.
+
+    ``window_photos``: build the windows' rendering maps from the photos of
+    ``meta["scan"]`` (:func:`window_photo_maps`); None takes ``meta["options"]
+    ["window_photos"]`` (default True). False writes the plain cube-map pictures.
+    """
     out.mkdir(parents=True, exist_ok=True)
+    if window_photos is None:
+        window_photos = bool(meta.get("options", {}).get("window_photos", True))
+    window_maps: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
+    if window_photos and meta.get("scan"):
+        window_maps, photo_notes = window_photo_maps(result, mesh, Path(meta["scan"]))
+        result.warnings.extend(photo_notes)
     flags = result.flags
     attrs = {
         "albedo": np.nan_to_num(result.albedo, nan=-1.0).astype(np.float32),
@@ -289,7 +365,12 @@ def write_outputs(
         ),
     }
     write_ply(out / "albedo.ply", trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), attrs)
-    lights = light_entries(result, out, float(meta.get("options", {}).get("min_bin_support", 0.01)))
+    lights = light_entries(
+        result,
+        out,
+        float(meta.get("options", {}).get("min_bin_support", 0.01)),
+        window_maps=window_maps,
+    )
     solve = result.solve
     pics = []
     if pictures:
@@ -305,9 +386,14 @@ def write_outputs(
                 pics.append(p)
             elif e["type"] == "window":
                 p = f"window_{e['name']}.png"
-                basis = CubemapBasis(result.cubemap_n)
-                ll = latlong_from_cubemap(np.asarray(e["distribution"]["cells"]), basis)
-                _cubemap_plot(out / p, ll, f"window {e['name']}: solved distant light")
+                if e["name"] in window_maps:
+                    ll = window_maps[e["name"]][0]
+                    title = f"window {e['name']}: solved distant light shaped by the photos"
+                else:
+                    basis = CubemapBasis(result.cubemap_n)
+                    ll = latlong_from_cubemap(np.asarray(e["distribution"]["cells"]), basis)
+                    title = f"window {e['name']}: solved distant light"
+                _cubemap_plot(out / p, ll, title)
                 pics.append(p)
     clusters = []
     for i, name in enumerate(result.cluster_names):

@@ -99,6 +99,11 @@ class InvertOptions:
         solved profile as ``profile_solved`` and gives in ``profile`` (used for power,
         IES files, pictures and rendering) those bins interpolated from the well-seen
         ones.
+    window_photos : bool
+        Render windows from the photos: ``window_<name>.exr`` shows, within each solved
+        cube cell, the detail of the pixels that looked out through the opening, with
+        the cell's solved mean kept (:mod:`reroom.invert.window_env`); the plain cells
+        stay in ``window_<name>_cells.exr``. False: the cells only.
     seed : int
         Seed of the ray sampling and of the solve's vertex subset.
     solve : SolveOptions
@@ -119,6 +124,7 @@ class InvertOptions:
     near_distance: float = 0.05
     near_max_fraction: float = 0.15
     min_bin_support: float = 0.01
+    window_photos: bool = True
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
     pictures: bool = True

@@ -1,0 +1,478 @@
+"""A window's environment map for rendering, from the photos' pixels seen through it.
+
+The inverse rendering solves a window's distant light on a coarse cube-map basis (96
+cells): enough for the light it sends into the room, but a new camera looking *at* the
+window sees a few flat blocks. The input photos, though, look through the opening:
+:func:`observe_windows` casts every (or every ``stride``-th) pixel ray of every frame
+against the HDR mesh, keeps those that leave through a window
+(:func:`reroom.invert.windows.rays_through_windows`), linearises the pixels with the
+HDR stage's response and divides by the frame's exposure ``scale``
+(``hdr/exposures.json``: linear pixel = scale x radiance), so the samples are in the HDR
+mesh's radiance units, and bins them by direction into a lat-long map (the portal's
+convention, :mod:`reroom.render.emitters`).
+
+:func:`refine_cells` then combines the photos with the solved cells so that the
+*lighting* stays the solve's: within each cube cell the photos only give the *shape*.
+
+* The photos' value of a texel is the mean of its unsaturated samples; a texel seen only
+  saturated (8-bit code >= 255 in some channel) has a lower bound instead,
+  ``linear / scale`` of its brightest sample (:func:`fill_gaps` first fills single
+  empty texels inside the seen region from their neighbours).
+* A cell with at least ``min_texels`` texels seen unsaturated (and ``min_samples``
+  unsaturated samples) gets ``solved x value / mean value`` on its seen texels (the mean
+  solid-angle weighted over the cell's seen texels, saturated ones counted at their
+  bound, so a clipped bright sky does not inflate the unsaturated texels next to it) and
+  its solved value on the texels no photo saw. The cell's mean is then its solved value.
+  Other cells keep their solved value everywhere.
+* A saturated texel is at least as bright as its bound: where the value above falls
+  below the bound (in any cell), the texel is raised to it, and the energy this adds is
+  taken back from the cell's other texels (scaled down together), so the cell's mean
+  stays the solved value. Where the bounds alone hold more than the cell's solved
+  energy, the whole cell is scaled down to that energy (the solve's light wins over the
+  bound; counted as ``cells_bound_capped``).
+
+So every cell keeps its solved mean channel by channel: the power, the light the room
+receives at the cube map's resolution and the albedos solved with it stay consistent;
+only where the light comes from *within* a cell changes, and the directions no photo saw
+look as before.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from reroom.errors import ReroomError
+from reroom.invert.basis import CubemapBasis
+from reroom.invert.windows import WindowOpening, rays_through_windows
+
+__all__ = [
+    "WindowPhotos",
+    "fill_gaps",
+    "latlong_directions",
+    "latlong_solid_angles",
+    "observe_windows",
+    "photo_environments",
+    "refine_cells",
+]
+
+
+def latlong_directions(height: int) -> np.ndarray:
+    """``(height, 2 height, 3)`` unit directions of the texel centres of a lat-long map.
+
+    Row 0 is the zenith, ``u = 0.5 - atan2(y, x) / 2 pi`` (the portal's convention, as
+    :func:`reroom.invert.export.latlong_from_cubemap`).
+    """
+    h, w = int(height), 2 * int(height)
+    theta = (np.arange(h) + 0.5) / h * np.pi
+    phi = (0.5 - (np.arange(w) + 0.5) / w) * 2 * np.pi
+    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
+    return np.stack(
+        np.broadcast_arrays(st * np.cos(phi)[None, :], st * np.sin(phi)[None, :], ct), axis=-1
+    )
+
+
+def latlong_solid_angles(height: int) -> np.ndarray:
+    """``(height, 2 height)`` solid angle of each texel (they sum to ``4 pi``)."""
+    h, w = int(height), 2 * int(height)
+    edges = np.cos(np.linspace(0.0, np.pi, h + 1))
+    return np.repeat(((edges[:-1] - edges[1:]) * 2 * np.pi / w)[:, None], w, axis=1)
+
+
+def _texel_index(directions: np.ndarray, height: int) -> np.ndarray:
+    """Flat lat-long texel index of unit directions ``(N, 3)``."""
+    h, w = int(height), 2 * int(height)
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    u = np.mod(0.5 - np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi), 1.0)
+    v = np.arccos(np.clip(d[:, 2], -1.0, 1.0)) / np.pi
+    col = np.minimum((u * w).astype(np.int64), w - 1)
+    row = np.minimum((v * h).astype(np.int64), h - 1)
+    return row * w + col
+
+
+@dataclass
+class WindowPhotos:
+    """What the photos saw through one window, per texel of a ``(H, 2H)`` lat-long map.
+
+    Attributes
+    ----------
+    mean:
+        ``(H, W, 3)`` mean radiance of the unsaturated samples (HDR mesh units); NaN
+        where there is none.
+    count:
+        ``(H, W)`` number of unsaturated samples.
+    bound:
+        ``(H, W, 3)`` largest lower bound from saturated samples (``linear / scale``, 0
+        where there is none).
+    saturated:
+        ``(H, W)`` number of saturated samples.
+    """
+
+    mean: np.ndarray
+    count: np.ndarray
+    bound: np.ndarray
+    saturated: np.ndarray
+
+    @property
+    def height(self) -> int:
+        return int(self.mean.shape[0])
+
+
+@dataclass
+class _Accumulator:
+    height: int
+    total: np.ndarray = field(init=False)
+    count: np.ndarray = field(init=False)
+    bound: np.ndarray = field(init=False)
+    saturated: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        n = 2 * self.height * self.height
+        self.total = np.zeros((n, 3))
+        self.count = np.zeros(n, np.int64)
+        self.bound = np.zeros((n, 3))
+        self.saturated = np.zeros(n, np.int64)
+
+    def add(self, directions: np.ndarray, values: np.ndarray, sat: np.ndarray) -> None:
+        idx = _texel_index(directions, self.height)
+        ok = ~sat
+        n = len(self.count)
+        self.count += np.bincount(idx[ok], minlength=n)
+        for c in range(3):
+            self.total[:, c] += np.bincount(idx[ok], weights=values[ok, c], minlength=n)
+            np.maximum.at(self.bound[:, c], idx[sat], values[sat, c])
+        self.saturated += np.bincount(idx[sat], minlength=n)
+
+    def result(self) -> WindowPhotos:
+        h, w = self.height, 2 * self.height
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(self.count[:, None] > 0, self.total / self.count[:, None], np.nan)
+        return WindowPhotos(
+            mean.reshape(h, w, 3),
+            self.count.reshape(h, w),
+            self.bound.reshape(h, w, 3),
+            self.saturated.reshape(h, w),
+        )
+
+
+def _read_exposures(scan: Path) -> tuple[dict, list[Any]]:
+    path = scan / "hdr" / "exposures.json"
+    try:
+        doc = json.loads(path.read_text())
+        frames = doc["frames"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ReroomError(f"{path}: cannot read the frame exposures ({exc!r})") from exc
+    scales: list[Any] = [None] * (max((int(f["index"]) for f in frames), default=-1) + 1)
+    for f in frames:
+        scales[int(f["index"])] = f.get("scale")
+    return doc, scales
+
+
+def _response(doc: dict, meta: dict, note) -> np.ndarray:
+    """The HDR stage's inverse response: the curve it names in ``exposures.json``."""
+    from reroom.hdr.linearize import response_lut
+
+    name = doc.get("response")
+    if not isinstance(name, str) or name.startswith("user curve"):
+        spec = doc.get("options", {}).get("response", "auto")
+        if not isinstance(spec, str) or spec.startswith("user curve"):
+            note(
+                "window photos: the HDR stage used a curve given as numbers; linearised "
+                "with the scan's own ('auto') instead"
+            )
+            spec = "auto"
+        return response_lut(spec, meta)
+    return response_lut(name, meta)
+
+
+def _interior(mask: np.ndarray) -> np.ndarray:
+    """Pixels whose 4 neighbours have the same (non-negative) label: no mixed rim pixels."""
+    out = mask >= 0
+    out[0, :] = out[-1, :] = False
+    out[:, 0] = out[:, -1] = False
+    c = mask[1:-1, 1:-1]
+    inner = (
+        (mask[:-2, 1:-1] == c)
+        & (mask[2:, 1:-1] == c)
+        & (mask[1:-1, :-2] == c)
+        & (mask[1:-1, 2:] == c)
+    )
+    out[1:-1, 1:-1] &= inner
+    return out
+
+
+def fill_gaps(photos: WindowPhotos) -> WindowPhotos:
+    """Fill texels no sample fell in from their 8 neighbours (one pass).
+
+    A pixel of a low-resolution frame is about as wide as a texel, so the samples of
+    one view leave scattered empty texels inside the region seen. An empty texel with
+    seen neighbours takes, when most of their samples are unsaturated, the mean of those
+    samples; otherwise the smallest positive bound among its saturated neighbours.
+    Counts stay those of the real samples (a filled texel has count 0 and a finite
+    ``mean``, or a positive ``bound``).
+    """
+    h, w = photos.mean.shape[:2]
+    count = photos.count.astype(np.float64)
+    total = np.nan_to_num(photos.mean) * count[..., None]
+    sat = photos.saturated.astype(np.float64)
+    big = np.where(photos.saturated[..., None] > 0, photos.bound, np.inf)
+
+    def neighbours(x: np.ndarray, fn, init: float) -> np.ndarray:
+        pad = np.full((h + 2, w + 2, *x.shape[2:]), init)
+        pad[1:-1, 1:-1] = x
+        pad[1:-1, 0], pad[1:-1, -1] = x[:, -1], x[:, 0]  # periodic in u
+        out = np.full_like(x, init, dtype=np.float64)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    out = fn(out, pad[1 + dy : h + 1 + dy, 1 + dx : w + 1 + dx])
+        return out
+
+    n_count = neighbours(count, np.add, 0.0)
+    n_total = neighbours(total, np.add, 0.0)
+    n_sat = neighbours(sat, np.add, 0.0)
+    n_bound = neighbours(big, np.minimum, np.inf)
+    empty = (photos.count == 0) & (photos.saturated == 0)
+    fill_mean = empty & (n_count > 0) & (n_count >= n_sat)
+    fill_bound = empty & (n_sat > n_count) & np.isfinite(n_bound).all(axis=-1)
+    mean = photos.mean.copy()
+    bound = photos.bound.copy()
+    mean[fill_mean] = n_total[fill_mean] / n_count[fill_mean][:, None]
+    bound[fill_bound] = n_bound[fill_bound]
+    return WindowPhotos(mean, photos.count.copy(), bound, photos.saturated.copy())
+
+
+def observe_windows(
+    scan_dir: str | Path,
+    mesh,
+    openings: list[WindowOpening],
+    *,
+    height: int = 128,
+    max_rays_per_frame: int = 250_000,
+    saturation_level: int = 255,
+    erode: bool = True,
+    caster=None,
+) -> tuple[list[WindowPhotos], dict[str, Any]]:
+    """Bin the photos' pixels seen through each window into a lat-long map per window.
+
+    Parameters
+    ----------
+    scan_dir:
+        The scan (``transforms.json``, images, ``hdr/exposures.json``).
+    mesh:
+        The HDR mesh (``trimesh.Trimesh``) the rays are cast against.
+    openings:
+        The windows.
+    height:
+        Rows of the lat-long maps (width ``2 height``).
+    max_rays_per_frame:
+        Pixels are taken on a regular grid with this many at most per frame.
+    saturation_level:
+        An 8-bit code at or above it in any channel marks a pixel saturated: its
+        value is only a lower bound.
+    erode:
+        Drop pixels next to a pixel that does not look through the same window (they
+        mix the window's rim with the outdoors).
+    caster:
+        A :class:`reroom.rays.RayCaster` on ``mesh`` (built if not given).
+
+    Returns
+    -------
+    photos, stats
+        One :class:`WindowPhotos` per opening, and counts (frames used, frames skipped
+        with the reason, samples, saturated samples) plus ``notes``.
+
+    Frames whose image cannot be read are skipped with a warning naming the file;
+    frames without an exposure (``scale`` null) are skipped silently (counted).
+    """
+    from reroom.hdr.linearize import linearize
+    from reroom.rays import RayCaster
+    from reroom.scan import load_scan
+
+    scan_dir = Path(scan_dir)
+    notes: list[str] = []
+    scan = load_scan(scan_dir, check_images=False)
+    doc, scales = _read_exposures(scan_dir)
+    lut = _response(doc, scan.meta, notes.append)
+    caster = caster if caster is not None else RayCaster(mesh)
+    acc = [_Accumulator(height) for _ in openings]
+    stats: dict[str, Any] = {
+        "frames": len(scan.frames),
+        "frames_used": 0,
+        "frames_no_exposure": 0,
+        "frames_unreadable": [],
+        "samples": [0] * len(openings),
+        "saturated": [0] * len(openings),
+    }
+    for j, frame in enumerate(scan.frames):
+        scale = scales[j] if j < len(scales) else None
+        if scale is None or not np.all(np.isfinite(np.asarray(scale, float))):
+            stats["frames_no_exposure"] += 1
+            continue
+        scale = np.broadcast_to(np.asarray(scale, float), (3,))
+        if np.any(scale <= 0):
+            stats["frames_no_exposure"] += 1
+            continue
+        k = frame.intrinsics
+        stride = max(1, int(np.ceil(np.sqrt(k.width * k.height / max_rays_per_frame))))
+        cols = np.arange(0, k.width, stride)
+        rows = np.arange(0, k.height, stride)
+        jj, ii = np.meshgrid(cols, rows)
+        uv = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], axis=1)
+        o, d = frame.pixel_rays(uv)
+        hits = caster.intersect(o, d, tmin=caster.eps)
+        win = rays_through_windows(o, d, hits.t, openings)
+        if not (win >= 0).any():
+            stats["frames_used"] += 1
+            continue
+        try:
+            img = frame.load_image()
+        except (ReroomError, OSError, ValueError) as exc:
+            msg = f"window photos: skipped frame {frame.image_path}: cannot read it ({exc})"
+            warnings.warn(msg, stacklevel=2)
+            stats["frames_unreadable"].append(str(frame.image_path))
+            notes.append(msg)
+            continue
+        keep = _interior(win.reshape(len(rows), len(cols))).ravel() if erode else win >= 0
+        codes = img[ii.ravel(), jj.ravel()]
+        values = linearize(codes, lut).astype(np.float64) / scale
+        sat = (codes >= saturation_level).any(axis=1)
+        for w in range(len(openings)):
+            sel = keep & (win == w)
+            if sel.any():
+                acc[w].add(d[sel], values[sel], sat[sel])
+                stats["samples"][w] += int(sel.sum())
+                stats["saturated"][w] += int(sat[sel].sum())
+        stats["frames_used"] += 1
+    stats["notes"] = notes
+    return [a.result() for a in acc], stats
+
+
+def refine_cells(
+    cells: np.ndarray,
+    basis: CubemapBasis,
+    photos: WindowPhotos,
+    *,
+    min_texels: int = 8,
+    min_samples: int = 32,
+    use_bounds: bool = True,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The ``(H, 2H, 3)`` rendering map of a window: its solved cells shaped by the photos.
+
+    See the module notes for the rule. Every cube cell keeps its solved mean over its
+    texels (solid-angle weighted; a texel belongs to the cell of its centre, as in
+    :func:`reroom.invert.export.latlong_from_cubemap`), channel by channel; a cell whose
+    solved value is not positive is left as solved.
+
+    Returns
+    -------
+    env, info
+        The map, and counts: ``cells_refined`` (shaped by unsaturated texels),
+        ``cells_bound_raised`` (with texels raised to their saturated bound),
+        ``cells_bound_capped`` (bounds above the solved energy: scaled down),
+        ``texels_observed``, ``texels_saturated_only``, and ``solved_over_photos``
+        (median over refined cells of solved / mean observed luminance: 1 when the solve
+        and the photos agree on the window's brightness).
+    """
+    cells = np.asarray(cells, np.float64)
+    h = photos.height
+    cell = basis.cell_of(latlong_directions(h).reshape(-1, 3))
+    area = latlong_solid_angles(h).ravel()
+    mean = photos.mean.reshape(-1, 3)
+    count = photos.count.ravel()
+    bound = photos.bound.reshape(-1, 3)
+    seen = np.isfinite(mean).all(axis=1)
+    sat_only = (bound > 0).any(axis=1) & ~seen
+    if not use_bounds:
+        sat_only[:] = False
+    # The shape: unsaturated texels' mean, saturated-only texels' lower bound.
+    shape = np.where(seen[:, None], np.nan_to_num(mean), bound)
+    out = cells[cell].copy()
+    refined = raised = capped = 0
+    ratios = []
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    order = np.argsort(cell, kind="stable")
+    starts = np.searchsorted(cell[order], np.arange(basis.size + 1))
+    for j in range(basis.size):
+        m = order[starts[j] : starts[j + 1]]
+        if len(m) == 0:
+            continue
+        a = area[m]
+        s = sat_only[m]
+        u = seen[m]
+        enough = u.sum() >= min_texels and count[m][u].sum() >= min_samples
+        shaped = u | s  # the texels the photos give a value (or a bound) for
+        obs = None
+        if enough:
+            obs = (a[shaped, None] * shape[m][shaped]).sum(0) / a[shaped].sum()
+            if float(obs @ lum) > 0 and float(cells[j] @ lum) > 0:
+                ratios.append(float(cells[j] @ lum) / float(obs @ lum))
+        did_refine = did_raise = did_cap = False
+        for c in range(3):
+            target = cells[j, c]
+            if not target > 0:
+                continue
+            vals = np.full(len(m), target)
+            if obs is not None and obs[c] > 0:
+                vals[shaped] = target * shape[m][shaped, c] / obs[c]
+                did_refine = True
+            lift = s & (bound[m, c] > vals)
+            if lift.any():
+                did_raise = True
+                vals[lift] = bound[m][lift, c]
+                total = target * a.sum()
+                fixed = float((a[lift] * vals[lift]).sum())
+                rest = float((a[~lift] * vals[~lift]).sum())
+                if fixed <= total and rest > 0:
+                    vals[~lift] *= (total - fixed) / rest
+                else:
+                    did_cap = True
+                    vals *= total / float((a * vals).sum())
+            out[m, c] = vals
+        refined += did_refine
+        raised += did_raise
+        capped += did_cap
+    info = {
+        "cells_refined": int(refined),
+        "cells_bound_raised": int(raised),
+        "cells_bound_capped": int(capped),
+        "texels_observed": int(seen.sum()),
+        "texels_saturated_only": int(sat_only.sum()),
+        "solved_over_photos": float(np.median(ratios)) if ratios else None,
+    }
+    return out.reshape(h, 2 * h, 3), info
+
+
+def photo_environments(
+    scan_dir: str | Path,
+    mesh,
+    windows: list[tuple[WindowOpening, np.ndarray]],
+    basis: CubemapBasis,
+    *,
+    height: int = 128,
+    caster=None,
+    fill: bool = True,
+    **observe: Any,
+) -> tuple[list[np.ndarray], list[dict[str, Any]], dict[str, Any]]:
+    """Rendering maps of windows from the photos and their solved cells.
+
+    ``windows`` pairs each opening with its ``(6 n^2, 3)`` solved cells. Returns the
+    maps (:func:`refine_cells`, after :func:`fill_gaps` if ``fill``), a dict of figures per window (with its ``samples`` and
+    ``saturated`` counts), and the frame statistics of :func:`observe_windows`.
+    """
+    photos, stats = observe_windows(
+        scan_dir, mesh, [w for w, _ in windows], height=height, caster=caster, **observe
+    )
+    maps, infos = [], []
+    for k, ((_, cells), ph) in enumerate(zip(windows, photos, strict=True)):
+        env, info = refine_cells(cells, basis, fill_gaps(ph) if fill else ph)
+        info["samples"] = stats["samples"][k]
+        info["saturated"] = stats["saturated"][k]
+        maps.append(env)
+        infos.append(info)
+    return maps, infos, stats

@@ -1,0 +1,273 @@
+"""The window's rendering map from the photos (reroom.invert.window_env)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.invert.basis import CubemapBasis
+from reroom.invert.export import latlong_from_cubemap, light_entries
+from reroom.invert.window_env import (
+    WindowPhotos,
+    fill_gaps,
+    latlong_directions,
+    latlong_solid_angles,
+    observe_windows,
+    refine_cells,
+)
+from reroom.invert.windows import WindowOpening
+from reroom.io.images import read_exr
+from reroom.rays import RayCaster
+from reroom.render.emitters import latlong_direction_to_uv
+from reroom.scan import Intrinsics, look_at, write_scan
+
+H = 32  # lat-long rows of the test maps
+SCALES = [1.0, 0.5]
+WINDOW = WindowOpening(
+    "window0",
+    np.array([0.0, -1.5, 1.25]),
+    np.array([0.8, 0.0, 0.0]),
+    np.array([0.0, 0.0, 0.6]),
+    np.array([0.0, 1.0, 0.0]),
+)
+
+
+def _environment() -> np.ndarray:
+    """A texel-constant lat-long environment: smooth colours, a very bright band on top."""
+    d = latlong_directions(H)
+    env = np.stack(
+        [0.35 + 0.25 * d[..., 0], 0.45 + 0.2 * d[..., 2], 0.5 - 0.2 * d[..., 0] * d[..., 2]], -1
+    )
+    theta = (np.arange(H) + 0.5) / H * 180.0
+    env[(theta > 72) & (theta < 80)] *= 10.0  # saturates in every frame
+    return env
+
+
+def _texel(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    uv = latlong_direction_to_uv(d)
+    col = np.minimum((uv[:, 0] * 2 * H).astype(int), 2 * H - 1)
+    row = np.minimum((uv[:, 1] * H).astype(int), H - 1)
+    return row, col
+
+
+def _room() -> trimesh.Trimesh:
+    mesh = trimesh.creation.box(extents=[4.0, 3.0, 2.5])
+    mesh.apply_translation([0, 0, 1.25])
+    return mesh
+
+
+@pytest.fixture(scope="module")
+def window_scan(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    """A box room (the window a pane in its -Y wall) and two frames rendered by hand."""
+    root = tmp_path_factory.mktemp("winscan")
+    mesh = _room()
+    env = _environment()
+    intr = Intrinsics.from_fov(96, 72, 70.0)
+    poses = [look_at([0.0, 0.6, 1.25], WINDOW.centre), look_at([0.6, 1.0, 1.5], WINDOW.centre)]
+    caster = RayCaster(mesh)
+    images = []
+    from reroom.invert.windows import rays_through_windows
+    from reroom.scan.camera import Frame
+
+    for pose, scale in zip(poses, SCALES, strict=True):
+        frame = Frame(0, root / "x.png", pose, intr)
+        o, d = frame.pixel_rays()
+        hits = caster.intersect(o, d, tmin=caster.eps)
+        through = rays_through_windows(o, d, hits.t, [WINDOW]) >= 0
+        linear = np.full((len(d), 3), 0.05)
+        row, col = _texel(d[through])
+        linear[through] = env[row, col] * scale
+        code = np.round(255.0 * np.clip(linear, 0, 1) ** (1 / 2.2)).astype(np.uint8)
+        images.append(code.reshape(intr.height, intr.width, 3))
+    write_scan(root, mesh, intr, poses, images, meta={"reroom": {"response": "gamma2.2"}})
+    (root / "hdr").mkdir()
+    doc = {
+        "response": "gamma2.2",
+        "reference_frame": 0,
+        "frames": [{"index": j, "scale": [s] * 3} for j, s in enumerate(SCALES)],
+    }
+    (root / "hdr" / "exposures.json").write_text(json.dumps(doc))
+    return root, env
+
+
+def _cell_means(env: np.ndarray, basis: CubemapBasis) -> np.ndarray:
+    h = env.shape[0]
+    cell = basis.cell_of(latlong_directions(h).reshape(-1, 3))
+    a = latlong_solid_angles(h).ravel()
+    num = np.stack(
+        [np.bincount(cell, a * env.reshape(-1, 3)[:, c], basis.size) for c in range(3)], 1
+    )
+    return num / np.bincount(cell, a, basis.size)[:, None]
+
+
+def test_solid_angles_sum_to_sphere():
+    assert latlong_solid_angles(H).sum() == pytest.approx(4 * np.pi)
+    cells = np.arange(96 * 3, dtype=float).reshape(96, 3)
+    basis = CubemapBasis(4)
+    # the cube-map picture's texels belong to the cell of their centre, as refine_cells'
+    assert np.allclose(_cell_means(latlong_from_cubemap(cells, basis, H), basis), cells)
+
+
+def test_observed_texels_match_environment(window_scan):
+    root, env = window_scan
+    (photos,), stats = observe_windows(root, _room(), [WINDOW], height=H)
+    assert stats["frames_used"] == 2 and stats["samples"][0] > 1000
+    seen = photos.count > 0
+    assert seen.sum() > 40
+    # linearised, divided by each frame's scale: the environment's radiance (8-bit steps)
+    np.testing.assert_allclose(photos.mean[seen], env[seen], rtol=0.03)
+    assert np.isnan(photos.mean[~seen]).all()
+    sat = (photos.saturated > 0) & ~seen
+    assert sat.sum() > 5
+    # a saturated sample's bound is 1 / scale of the frame (white level), below the truth
+    assert np.all(photos.bound[sat] <= env[sat] * 1.001)
+    assert np.all(photos.bound[sat].max(axis=-1) >= 1.0 - 1e-6)
+
+
+def test_refined_map_reproduces_observed_texels_and_keeps_cell_means(window_scan):
+    root, env = window_scan
+    basis = CubemapBasis(4)
+    (photos,), _ = observe_windows(root, _room(), [WINDOW], height=H)
+    seen = photos.count > 0
+    cell = basis.cell_of(latlong_directions(H).reshape(-1, 3)).reshape(H, 2 * H)
+    a = latlong_solid_angles(H)
+    # Solved cells that equal the environment's mean over each cell's observed part:
+    # the refined map must then show the observed texels as they are.
+    solved = _cell_means(env, basis)
+    for j in np.unique(cell[seen]):
+        m = seen & (cell == j) & (photos.saturated == 0)
+        if m.any():
+            solved[j] = (a[m, None] * env[m]).sum(0) / a[m].sum()
+    unsat_cells = [j for j in np.unique(cell[seen]) if not (photos.saturated[cell == j] > 0).any()]
+    assert unsat_cells, "the test needs a cell seen without saturation"
+    out, info = refine_cells(solved, basis, photos, min_texels=4, min_samples=16)
+    assert info["cells_refined"] >= len(unsat_cells)
+    for j in unsat_cells:
+        m = seen & (cell == j)
+        if m.sum() >= 4:
+            np.testing.assert_allclose(out[m], env[m], rtol=0.03)
+    # every cell keeps its solved mean, whatever the photos or the bounds did
+    np.testing.assert_allclose(_cell_means(out, basis), solved, rtol=1e-9, atol=1e-12)
+    # texels of cells the photos do not see show the solved value
+    unseen_cells = ~np.isin(cell, np.unique(cell[seen | (photos.saturated > 0)]))
+    np.testing.assert_allclose(out[unseen_cells], solved[cell[unseen_cells]])
+    # with other solved values: the shape within a cell is the photos', the mean the solve's
+    other = solved * np.linspace(0.5, 2.0, basis.size)[:, None]
+    out2, _ = refine_cells(other, basis, photos, min_texels=4, min_samples=16)
+    np.testing.assert_allclose(_cell_means(out2, basis), other, rtol=1e-9, atol=1e-12)
+    for j in unsat_cells:
+        m = seen & (cell == j)
+        if m.sum() >= 4:
+            ratio = out2[m] / env[m]
+            assert np.std(ratio) / np.mean(ratio) < 0.03
+
+
+def _photos_one_cell(value: float, bound: float) -> tuple[WindowPhotos, np.ndarray, np.ndarray]:
+    """Hand-made photos: one cell, half its texels seen at ``value``, one saturated texel."""
+    basis = CubemapBasis(4)
+    h = 32
+    cell = basis.cell_of(latlong_directions(h).reshape(-1, 3)).reshape(h, 2 * h)
+    j = int(cell[h // 2, h // 2])
+    texels = np.argwhere(cell == j)
+    mean = np.full((h, 2 * h, 3), np.nan)
+    count = np.zeros((h, 2 * h), np.int64)
+    for r, c in texels[: len(texels) // 2]:
+        mean[r, c] = value * (1 + 0.1 * (c % 3))
+        count[r, c] = 10
+    sat_texel = tuple(texels[-1])
+    bound_map = np.zeros((h, 2 * h, 3))
+    saturated = np.zeros((h, 2 * h), np.int64)
+    bound_map[sat_texel] = bound
+    saturated[sat_texel] = 3
+    return WindowPhotos(mean, count, bound_map, saturated), cell == j, np.array(sat_texel)
+
+
+@pytest.mark.parametrize("bound, capped", [(3.0, False), (400.0, True)])
+def test_saturated_bounds_raise_texels_but_keep_the_mean(bound, capped):
+    basis = CubemapBasis(4)
+    # seen texels brighter than the solved cell: the cell-scaled bound falls below the bound
+    photos, in_cell, sat = _photos_one_cell(2.0, bound)
+    solved = np.ones((basis.size, 3))
+    out, info = refine_cells(solved, basis, photos, min_texels=4, min_samples=4)
+    assert info["cells_refined"] == 1 and info["cells_bound_raised"] == 1
+    assert info["cells_bound_capped"] == int(capped)
+    np.testing.assert_allclose(_cell_means(out, basis), solved, rtol=1e-9)
+    if capped:
+        assert np.all(out[tuple(sat)] < bound)  # the solved energy wins over the bound
+    else:
+        np.testing.assert_allclose(out[tuple(sat)], bound)
+    assert np.all(out[~in_cell] == 1.0)
+    # without bounds, the texel keeps the cell's value (the shape comes from seen texels)
+    out2, info2 = refine_cells(solved, basis, photos, min_texels=4, min_samples=4, use_bounds=False)
+    assert info2["cells_bound_raised"] == 0 and out2[tuple(sat)][0] < bound
+
+
+def test_too_few_observations_keep_the_solved_cell():
+    basis = CubemapBasis(4)
+    photos, _, _ = _photos_one_cell(0.5, 0.0)
+    photos.saturated[:] = 0
+    solved = np.full((basis.size, 3), 2.0)
+    out, info = refine_cells(solved, basis, photos, min_texels=10_000)
+    assert info["cells_refined"] == 0
+    np.testing.assert_allclose(out, 2.0)
+
+
+def test_fill_gaps_fills_isolated_holes_only():
+    mean = np.full((8, 16, 3), np.nan)
+    count = np.zeros((8, 16), np.int64)
+    mean[2:5, 2:5] = 1.0
+    count[2:5, 2:5] = 2
+    mean[3, 3], count[3, 3] = np.nan, 0  # a hole inside the seen region
+    photos = fill_gaps(WindowPhotos(mean, count, np.zeros((8, 16, 3)), np.zeros((8, 16), int)))
+    assert np.allclose(photos.mean[3, 3], 1.0) and photos.count[3, 3] == 0
+    assert np.isnan(photos.mean[7, 10]).all()
+
+
+def test_unreadable_frame_is_skipped_with_a_warning(window_scan, tmp_path):
+    import shutil
+
+    root, env = window_scan
+    copy = tmp_path / "scan"
+    shutil.copytree(root, copy)
+    bad = copy / "images" / "frame_00001.png"
+    bad.write_bytes(b"not a png")
+    with pytest.warns(UserWarning, match="frame_00001.png"):
+        (photos,), stats = observe_windows(copy, _room(), [WINDOW], height=H)
+    assert stats["frames_used"] == 1 and stats["frames_unreadable"] == [str(bad)]
+    seen = photos.count > 0
+    np.testing.assert_allclose(photos.mean[seen], env[seen], rtol=0.03)
+
+
+def test_light_entries_write_both_maps(tmp_path):
+    basis = CubemapBasis(4)
+    cells = np.linspace(0.1, 2.0, basis.size * 3).reshape(basis.size, 3)
+    env = np.full((128, 256, 3), 0.7, np.float32)
+    geo = {
+        "centre": WINDOW.centre.tolist(),
+        "half_u": WINDOW.half_u.tolist(),
+        "half_v": WINDOW.half_v.tolist(),
+        "normal": WINDOW.normal.tolist(),
+    }
+    result = SimpleNamespace(
+        cubemap_n=4,
+        lights=[SimpleNamespace(name="window0", kind="window")],
+        light_info=[{"geometry": geo}],
+        solve=SimpleNamespace(intensities={"window0": cells}, light_share={"window0": 1.0}),
+    )
+    (e,) = light_entries(result, tmp_path, window_maps={"window0": (env, {"cells_refined": 3})})
+    assert e["environment_exr"] == "window_window0.exr"
+    assert e["environment_cells_exr"] == "window_window0_cells.exr"
+    assert e["environment_source"] == "photos+cells"
+    np.testing.assert_allclose(read_exr(tmp_path / "window_window0.exr")[..., :3], 0.7)
+    np.testing.assert_allclose(
+        read_exr(tmp_path / e["environment_cells_exr"])[..., :3],
+        latlong_from_cubemap(cells, basis),
+        rtol=1e-6,
+    )
+    (e2,) = light_entries(result, tmp_path / "plain")
+    assert e2["environment_source"] == "cells"
