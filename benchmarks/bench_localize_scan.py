@@ -80,9 +80,29 @@ def main() -> None:
         help="discovery score: other lights refitted, robust weights (joint) or fixed",
     )
     ap.add_argument(
-        "--no-search-albedo-update",
+        "--search-albedo-update",
+        default="bounded",
+        choices=("bounded", "iterated", "anchored", "off"),
+        help="albedo update during the search (off: the robust minimum throughout)",
+    )
+    ap.add_argument(
+        "--search-albedo-bound", type=float, default=0.05, help="bound of the bounded update"
+    )
+    ap.add_argument(
+        "--downward-candidates", action="store_true", help="also score downward candidates"
+    )
+    ap.add_argument(
+        "--no-mount-unsupported",
         action="store_true",
-        help="keep the robust-minimum albedos during the search",
+        help="mount only lights that send nothing upwards (the earlier rule)",
+    )
+    ap.add_argument(
+        "--mount-shift", type=float, default=0.2, help="x, y refit of a mounted light (m)"
+    )
+    ap.add_argument(
+        "--no-keep-enclosed",
+        action="store_true",
+        help="a light inside a fitting takes the lowest-cost height too",
     )
     ap.add_argument(
         "--profile-gain", type=float, default=0.2, help="goniometric test threshold (1: off)"
@@ -100,7 +120,12 @@ def main() -> None:
         window_cells=args.window_cells,
         min_gain=args.min_gain,
         discovery=args.discovery,
-        search_albedo_update=not args.no_search_albedo_update,
+        search_albedo_update=args.search_albedo_update,
+        search_albedo_bound=args.search_albedo_bound,
+        downward_candidates=args.downward_candidates,
+        mount_unsupported=not args.no_mount_unsupported,
+        mount_shift=args.mount_shift,
+        keep_enclosed=not args.no_keep_enclosed,
         profile_gain=args.profile_gain,
         height_bins=args.height_bins,
         mount_test=not args.no_mount_test,
@@ -146,7 +171,9 @@ def main() -> None:
                 if m is not None:
                     print(f"  mount test: upward flux {100 * m['upward_flux']:.1f}%, "
                           f"{m.get('fitting_vertices', '-')} fitting vertices, cost ratio "
-                          f"{m.get('cost_ratio', float('nan')):.3f}: {m['reason']}")  # fmt: skip
+                          f"{m.get('cost_ratio', float('nan')):.3f}: {m['reason']}"
+                          + (", x, y refitted" if "shift_m" in m else "")
+                          + ("; inside the fitting: search height kept" if m.get("enclosed") else ""))  # fmt: skip
         print(f"target met: {ev['target_met']}   (load {os.getloadavg()[0]:.1f})")
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))

@@ -25,7 +25,9 @@ from reroom.localize.scan import (
     ScanLocalizeOptions,
     ScanLocalizeResult,
     _discovery_gain,
+    _enclosed,
     _mount_test,
+    _Problem,
     localize_into_lights,
     localize_scan,
     merge_localized_lights,
@@ -170,7 +172,12 @@ def test_merge_replaces_detected_and_keeps_user_lights(localized, room_scan: Pat
 
 
 def _mount_case(
-    profile_up: bool = False, pendant: bool = False, side: bool = False, top_ratio: float = 1.02
+    profile_up: bool = False,
+    pendant: bool = False,
+    side: bool = False,
+    top_ratio: float = 1.02,
+    labelled: bool = False,
+    stand: bool = False,
 ):
     """A 4 x 3 x 2.5 m room, a light tested along the vertical x = 2, y = 1.5 whose costs
     are lowest at 1.8 m and ``top_ratio`` times that just under the ceiling."""
@@ -184,6 +191,16 @@ def _mount_case(
         arm = trimesh.creation.box(extents=[0.1, 0.1, 0.3])
         arm.apply_translation([2.2, 1.5, 2.0])
         room = trimesh.util.concatenate([room, arm])
+    n_room = len(room.vertices)
+    if stand:  # a lamp's stand below the light (a floor lamp): what holds it
+        body = trimesh.creation.box(extents=[0.1, 0.1, 1.2])
+        body.apply_translation([2.1, 1.5, 0.6])
+        room = trimesh.util.concatenate([room, body])
+    # Layout labels: the room's corners are floor (z = 0) and ceiling, the rest "other".
+    labels = np.full(len(room.vertices), 255)
+    corners = np.asarray(room.vertices[:8])
+    labels[:8] = np.where(corners[:, 2] < 1.0, 1, 2)
+    labels[8:n_room] = 255
     heights = np.arange(0.5, 2.48, 0.05)
     cands = np.column_stack([np.full_like(heights, 2.0), np.full_like(heights, 1.5), heights])
     costs = 100.0 * (1.0 + (top_ratio - 1.0) * ((heights - 1.8) / (heights[-1] - 1.8)) ** 2)
@@ -194,7 +211,7 @@ def _mount_case(
     best = int(np.argmin(costs))
     return _mount_test(
         RayCaster(room), np.asarray(room.vertices), cands, costs, profile, best, solid,
-        ScanLocalizeOptions(),
+        ScanLocalizeOptions(), labels if labelled else None,
     ), cands  # fmt: skip
 
 
@@ -219,6 +236,70 @@ def test_mount_test_keeps_lights_that_light_upwards_or_have_a_fitting():
     assert beside["surface_above_z"] == pytest.approx(2.5)
     rejected, _ = _mount_case(top_ratio=1.5)
     assert not rejected["mounted"] and rejected["cost_ratio"] > 1.1, rejected
+
+
+def test_mount_test_lifts_a_light_nothing_holds():
+    # It lights upwards (no body needs to shade it), but nothing in the scan holds it
+    # (only floor and ceiling around its vertical): it is in the ceiling, if the data allow.
+    free, cands = _mount_case(profile_up=True, labelled=True)
+    assert free["mounted"] and free["fitting_vertices"] == 0, free
+    assert 2.4 <= cands[free["index"], 2] < 2.5
+    # A stand below it (a floor lamp) holds it; a pendant's shade is the surface above.
+    held, _ = _mount_case(profile_up=True, labelled=True, stand=True)
+    assert not held["mounted"] and held["fitting_vertices"] > 0, held
+    shade, cands = _mount_case(profile_up=True, labelled=True, pendant=True)
+    assert shade["surface_above_z"] == pytest.approx(1.85), shade
+    assert not shade["mounted"] or cands[shade["index"], 2] < 1.85, shade
+    # The data must still allow the ceiling.
+    rejected, _ = _mount_case(profile_up=True, labelled=True, top_ratio=1.5)
+    assert not rejected["mounted"] and rejected["cost_ratio"] > 1.1, rejected
+    # Switched off: the earlier rule (a light lighting upwards stays).
+    off = _mount_test(
+        RayCaster(trimesh.creation.box(extents=SIZE).apply_translation(SIZE / 2)),
+        np.zeros((0, 3)), cands, np.full(len(cands), 100.0), np.ones(64),
+        0, np.full(64, 4.0 * np.pi / 64), ScanLocalizeOptions(mount_unsupported=False),
+        np.zeros(0, int),
+    )  # fmt: skip
+    assert not off["mounted"], off
+
+
+def test_enclosed_by_a_shade_not_by_a_pole_beside():
+    # A lamp: a shade (a ring of radius 0.2 m from 1.3 to 1.7 m) on a pole to the floor.
+    t = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    ring = np.column_stack([0.2 * np.cos(t), 0.2 * np.sin(t)])
+    shade = np.vstack([np.column_stack([ring, np.full(24, z)]) for z in (1.3, 1.5, 1.7)])
+    pole = np.column_stack([np.zeros(14), np.zeros(14), np.linspace(0.0, 1.3, 14)])
+    floor = np.array([[0.1, 0.0, 0.0], [-0.1, 0.1, 0.0]])
+    verts = np.vstack([shade, pole, floor]) + [2.0, 1.5, 0.0]
+    labels = np.r_[np.full(len(shade) + len(pole), 255), np.ones(len(floor), int)]
+    assert _enclosed(verts, labels, np.array([2.05, 1.5, 1.5]), 0.3)
+    # Below the shade, beside the pole; above it; the same shade labelled as wall.
+    assert not _enclosed(verts, labels, np.array([2.15, 1.5, 0.8]), 0.3)
+    assert not _enclosed(verts, labels, np.array([2.0, 1.5, 2.2]), 0.3)
+    assert not _enclosed(verts, np.zeros(len(verts), int), np.array([2.05, 1.5, 1.5]), 0.3)
+
+
+def test_downward_light_lights_only_what_is_below_it():
+    room = trimesh.creation.box(extents=SIZE)
+    room.apply_translation(SIZE / 2)
+    pts = np.array([[2.0, 1.5, 0.0], [2.0, 1.5, 2.5], [0.0, 1.5, 0.5], [0.0, 1.5, 2.2]])
+    nrm = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [1.0, 0, 0]])
+    n = len(pts)
+    prob = _Problem(
+        pts, nrm, np.ones(n), np.zeros(n), np.zeros(n, int), [0], np.zeros((n, 0)), [],
+        RayCaster(room), 1.0,
+    )  # fmt: skip
+    light = np.array([[2.0, 1.5, 2.0]])
+    assert prob.visibility(light).all()
+    assert prob.visibility(light, np.array([False])).all()
+    np.testing.assert_array_equal(
+        prob.visibility(light, np.array([True]))[:, 0], [True, False, True, False]
+    )
+
+
+def test_unknown_albedo_update_mode_is_rejected(tmp_path: Path):
+    with pytest.raises(ValueError, match="search_albedo_update"):
+        localize_scan(tmp_path, ScanLocalizeOptions(search_albedo_update="sometimes"))
 
 
 def test_discovery_gain_refits_the_known_lights():

@@ -33,7 +33,8 @@ best new light explains less than ``min_gain`` of the remaining energy or carrie
 are then dropped. Last, a goniometric test (an inclination profile at heights along the
 vertical through each light: 32 bins decide, 64 place) catches downlights, which an
 isotropic model puts far too low, and a mount test puts a light that sends nothing upwards
-and has no fitting in the scan just under the ceiling above it; the albedos are
+and has no fitting in the scan, or that nothing in the scan holds, just under the ceiling
+above it (a light inside a shade keeps the search's height); the albedos are
 re-estimated with its lights and the test repeated. See
 docs/localize.md for what was measured, including why the voting function is not used
 here.
@@ -147,16 +148,38 @@ class ScanLocalizeOptions:
         (metres) below the surface above.
     mount_tolerance:
         ... and taken when its cost is at most this fraction above the best height's.
+    mount_shift:
+        The mounted light's x, y are refitted within this distance (metres, each axis)
+        of the vertical through the light (0: not).
+    keep_enclosed:
+        A goniometric light inside a fitting the scan shows (vertices other than wall,
+        floor and ceiling within ``mount_radius`` of it all around its vertical: a lamp's
+        shade; :func:`_enclosed`) keeps the search's height instead of the lowest-cost one.
     albedo_rounds:
         Rounds of (albedos from the lights, goniometric test).
     search_albedo_update:
-        Re-estimate the albedos (median of ``(E_ind + A x + S I) / pi L``) after each
-        joint solve of the search. The update has no fixed point (a larger ``1 / rho`` is
-        absorbed by larger strengths of the other lights), so it drifts: on
-        ``box_points`` the wall albedo went from the robust minimum's 0.71 to 0.56 (truth
-        0.667), with or without lights. Off, the downlight of ``box_points`` is
-        discovered (x, y within 0.22 m, but left at 0.15 m height) and the floor lamp of
-        ``furnished_s1`` ends 0.66 m off, so it stays on (docs/localize.md).
+        How the albedos are re-estimated (median of ``(E_ind + A x + S I) / pi L``) during
+        the search: ``"bounded"`` (default): after each joint solve, from the previous
+        albedos, but kept within a factor ``1 + search_albedo_bound`` of the robust
+        minimum; ``"iterated"`` (the earlier rule): the same unbounded; ``"anchored"``:
+        one update per discovery from the lights fitted at the robust minimum;
+        ``"off"``: the robust minimum throughout. The update has no fixed point (a larger
+        ``1 / rho`` is absorbed by larger strengths of the other lights), so iterated it
+        drifts: on ``box_points`` the wall albedo went from the robust minimum's 0.71 to
+        0.56 (truth 0.667), with or without lights, and the downlight was not discovered
+        (docs/localize.md).
+    search_albedo_bound:
+        See ``search_albedo_update``.
+    downward_candidates:
+        Score each grid position twice in the discovery: as an isotropic light and as a
+        downward one (its upper half shaded by a housing: it lights only what is below
+        it). An isotropic stand-in for a downlight lights the ceiling around it, which
+        the scan shows dark, so it explains less (docs/localize.md).
+    mount_unsupported:
+        Also mount a light that sends light upwards when the scan shows nothing that could
+        hold it (no vertex other than floor and ceiling near it, ``vertex_labels`` needed)
+        and the data allow the mounted position (``mount_tolerance``): a light cannot
+        float, so it is in the surface above (docs/localize.md).
     soft_scale:
         Scale of the soft-L1 loss, as a fraction of the median ``pi L``.
     time_limit:
@@ -192,8 +215,13 @@ class ScanLocalizeOptions:
     mount_clearance: float = 0.05
     mount_depth: float = 0.1
     mount_tolerance: float = 0.1
+    mount_shift: float = 0.2
+    keep_enclosed: bool = True
     albedo_rounds: int = 2
-    search_albedo_update: bool = True
+    search_albedo_update: str = "bounded"
+    search_albedo_bound: float = 0.05
+    mount_unsupported: bool = True
+    downward_candidates: bool = False
     soft_scale: float = 0.3
     time_limit: float = 900.0
     seed: int = 0
@@ -263,10 +291,17 @@ class _Problem:
             self.scale,
         )  # fmt: skip
 
-    def visibility(self, positions: np.ndarray) -> np.ndarray | None:
+    def visibility(
+        self, positions: np.ndarray, down: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """Ray-cast visibility; a ``down`` light (its upper half shaded by its housing)
+        lights only the receivers below it."""
         if len(positions) == 0:
             return None
-        return self.caster.visibility_matrix(self.points, self.normals, positions)
+        vis = self.caster.visibility_matrix(self.points, self.normals, positions)
+        if down is not None and np.any(down):
+            vis = vis & ~(down[None, :] & (self.points[:, 2:3] >= positions[None, :, 2]))
+        return vis
 
     def direct(self, u: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``B = pi L / rho - E_ind - A x``: the direct light left for point lights."""
@@ -398,7 +433,7 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
         p, n, pil, hemi.indirect.mean(axis=1), np.searchsorted(classes, labels[recv]), classes,
         np.stack(cols, axis=1), names, caster, float(np.median(pil)),
     )  # fmt: skip
-    return prob, pts, layout, np.asarray(labels[recv])
+    return prob, pts, layout, np.asarray(labels[recv]), labels
 
 
 def _discovery_gain(
@@ -448,6 +483,7 @@ def _joint_fit(
     x: np.ndarray,
     bounds: tuple[np.ndarray, np.ndarray],
     soft: float,
+    down: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Robust joint solve of point-light positions and intensities and other lights' strengths.
 
@@ -455,7 +491,7 @@ def _joint_fit(
     computed at the starting positions and held fixed, as in §6.5.3.
     """
     k, m, npts = len(pos), prob.other.shape[1], len(prob.pil)
-    vis = prob.visibility(pos)
+    vis = prob.visibility(pos, down)
     target = prob.direct(u, np.zeros(m))
 
     def unpack(z):
@@ -489,11 +525,14 @@ def _joint_fit(
     return p.copy(), i_.copy(), xx.copy(), float(np.sqrt(np.mean(sol.fun**2)))
 
 
-def _update_albedo(prob: _Problem, pos, inten, x, u_prev: np.ndarray) -> np.ndarray:
+def _update_albedo(prob: _Problem, pos, inten, x, u_prev: np.ndarray, down=None) -> np.ndarray:
     """``u_c = 1 / rho_c``: median of ``(E_ind + A x + S I) / pi L`` over each class."""
     pred = prob.e_ind + prob.other @ x
     if len(pos):
-        pred = pred + shading_matrix(prob.points, prob.normals, pos, prob.visibility(pos)) @ inten
+        pred = (
+            pred
+            + shading_matrix(prob.points, prob.normals, pos, prob.visibility(pos, down)) @ inten
+        )
     u = u_prev.copy()
     for j in range(len(prob.classes)):
         sel = (prob.cls == j) & (prob.pil > 0)
@@ -516,7 +555,7 @@ def _albedo_from(prob: _Problem, direct: np.ndarray, u_prev: np.ndarray) -> np.n
 
 
 def _lights_direct(
-    prob: _Problem, pos: np.ndarray, inten: np.ndarray, profiles: list
+    prob: _Problem, pos: np.ndarray, inten: np.ndarray, profiles: list, down=None
 ) -> np.ndarray:
     """Direct light of the point lights at the receivers: isotropic, or by the inclination
     profile the goniometric test fitted."""
@@ -527,7 +566,7 @@ def _lights_direct(
     for k in range(len(pos)):
         pr = profiles[k] if k < len(profiles) else None
         if pr is None:
-            vis = prob.visibility(pos[k : k + 1])
+            vis = prob.visibility(pos[k : k + 1], None if down is None else down[k : k + 1])
             out += shading_matrix(prob.points, prob.normals, pos[k : k + 1], vis)[:, 0] * inten[k]
         else:
             f = point_light_transfer(
@@ -570,7 +609,11 @@ def localize_scan(
     scan = Path(scan_dir)
     t0 = time.perf_counter()
     notes: list[str] = []
-    full, verts, layout, labels = _build_problem(scan, opt, notes)
+    if opt.search_albedo_update not in ("anchored", "iterated", "bounded", "off"):
+        raise ValueError(
+            f"search_albedo_update {opt.search_albedo_update!r}: bounded, anchored, iterated or off"
+        )
+    full, verts, layout, labels, vert_labels = _build_problem(scan, opt, notes)
     rng = np.random.default_rng(opt.seed + 1)
     search = np.flatnonzero(np.isin(labels, opt.classes))
     if search.size > opt.max_measurements:
@@ -593,6 +636,12 @@ def localize_scan(
         cand,
         prob.caster.visibility_matrix(prob.points[sub], prob.normals[sub], cand),
     )
+    kind = np.zeros(len(cand), bool)  # True: a downward light (upper half shaded)
+    if opt.downward_candidates:
+        below = prob.points[sub, 2:3] < cand[None, :, 2]
+        s_grid = np.hstack([s_grid, s_grid * below])
+        kind = np.r_[kind, np.ones(len(cand), bool)]
+        cand = np.vstack([cand, cand])
     s_norm2 = (s_grid**2).sum(axis=0) + 1e-300
     bounds = (lo + 0.05, hi - 0.05)
     soft = opt.soft_scale
@@ -603,8 +652,9 @@ def localize_scan(
         [1.0 / max(np.percentile(ratio[full.cls == j], opt.albedo_percentile), 1e-6)
          if np.any(full.cls == j) else 1.0 for j in range(len(full.classes))]
     )  # fmt: skip
+    u0 = u.copy()
     x = _nonneg_fit(prob.other, prob.direct(u, np.zeros(prob.other.shape[1])))
-    pos, inten = np.zeros((0, 3)), np.zeros(0)
+    pos, inten, down = np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool)
     history: list[dict] = []
     reason = "max lights"
     rms = float(np.sqrt(np.mean((prob.direct(u, x) / prob.scale) ** 2)))
@@ -612,7 +662,7 @@ def localize_scan(
         if time.perf_counter() - t0 > opt.time_limit:
             reason = "time limit"
             break
-        vis = prob.visibility(pos)
+        vis = prob.visibility(pos, down)
         r = prob.direct(u, x)
         if len(pos):
             r = r - shading_matrix(prob.points, prob.normals, pos, vis) @ inten
@@ -629,22 +679,36 @@ def localize_scan(
                 known.append(shading_matrix(prob.points[sub], prob.normals[sub], pos, vis[sub]))
             gain, start = _discovery_gain(s_grid, r[sub], np.hstack(known), soft * prob.scale)
         j = int(np.argmax(gain))
-        entry = {"candidate": cand[j].tolist(), "gain": float(gain[j])}
+        entry = {"candidate": cand[j].tolist(), "downward": bool(kind[j]), "gain": float(gain[j])}
         if gain[j] < opt.min_gain:
             reason = f"best new light explains {gain[j]:.0%} < {opt.min_gain:.0%}"
             history.append(entry)
             break
         new_pos = np.vstack([pos, cand[j]])
         new_int = np.concatenate([inten, [start[j]]])
+        new_down = np.r_[down, kind[j]]
         new_u, new_x = u, x
-        for _ in range(2):
+        if opt.search_albedo_update == "anchored":
+            # One step from the robust minimum: the update has no fixed point (docs).
             new_pos, new_int, new_x, _r = _joint_fit(
-                prob, new_pos, new_int, new_u, new_x, bounds, soft
+                prob, new_pos, new_int, u0, new_x, bounds, soft, new_down
             )
-            if opt.search_albedo_update:
-                new_u = _update_albedo(prob, new_pos, new_int, new_x, new_u)
+            new_u = _update_albedo(prob, new_pos, new_int, new_x, u0, new_down)
+            new_pos, new_int, new_x, _r = _joint_fit(
+                prob, new_pos, new_int, new_u, new_x, bounds, soft, new_down
+            )
+        else:
+            for _ in range(2):
+                new_pos, new_int, new_x, _r = _joint_fit(
+                    prob, new_pos, new_int, new_u, new_x, bounds, soft, new_down
+                )
+                if opt.search_albedo_update in ("iterated", "bounded"):
+                    new_u = _update_albedo(prob, new_pos, new_int, new_x, new_u, new_down)
+                if opt.search_albedo_update == "bounded":
+                    b = 1.0 + opt.search_albedo_bound
+                    new_u = np.clip(new_u, u0 / b, u0 * b)
         new_pos, new_int, new_x, new_rms = _joint_fit(
-            prob, new_pos, new_int, new_u, new_x, bounds, soft
+            prob, new_pos, new_int, new_u, new_x, bounds, soft, new_down
         )
         share = new_int[-1] / max(float(new_int.sum()), 1e-300)
         entry.update(positions=new_pos.tolist(), intensities=new_int.tolist(), rms=new_rms)
@@ -652,23 +716,27 @@ def localize_scan(
         if share < opt.min_power:
             reason = f"new light carries {share:.1%} < {opt.min_power:.0%} of the intensity"
             break
-        pos, inten, u, x, rms = new_pos, new_int, new_u, new_x, new_rms
+        pos, inten, down, u, x, rms = new_pos, new_int, new_down, new_u, new_x, new_rms
         if progress is not None:
             progress("localize", it + 1, opt.max_lights)
     keep = inten >= opt.min_power * max(float(inten.sum()), 1e-300)
-    pos, inten = pos[keep], inten[keep]
-    pos, inten, x, pruned = _prune(prob, pos, inten, u, x, bounds, soft, opt.prune_ratio)
+    pos, inten, down = pos[keep], inten[keep], down[keep]
+    pos, inten, x, down, pruned = _prune(
+        prob, pos, inten, u, x, bounds, soft, opt.prune_ratio, down
+    )
     # Albedos of every class (the floor too) from the lights found, then the goniometric
     # test; the test changes what the lights put on the surfaces (an isotropic downlight
     # found low lights the ceiling, the real one does not), so the albedos are estimated
     # again from its lights and the test repeated from the isotropic lights.
     u_search = {c: u[j] for j, c in enumerate(full.classes) if c in opt.classes}
-    direct = shading_matrix(full.points, full.normals, pos, full.visibility(pos)) @ inten
+    direct = shading_matrix(full.points, full.normals, pos, full.visibility(pos, down)) @ inten
     profiles: list[dict | None] = [None] * len(pos)
     for _ in range(opt.albedo_rounds):
         u = _albedo_from(full, direct, u)
-        profiles = _goniometric_test(full, pos, inten, u, (lo, hi), layout, opt, verts)
-        direct = _lights_direct(full, pos, inten, profiles)
+        profiles = _goniometric_test(
+            full, pos, inten, u, (lo, hi), layout, opt, verts, vert_labels, down
+        )
+        direct = _lights_direct(full, pos, inten, profiles, down)
     u = _albedo_from(full, direct, u)
     pos, inten = pos.copy(), inten.copy()
     for k, pr in enumerate(profiles):
@@ -695,6 +763,7 @@ def localize_scan(
         "rms_relative": rms,
         "stopped": reason,
         "leave_one_out": pruned,
+        "downward": down.tolist(),
         "goniometric": [
             None if pr is None else {k: v for k, v in pr.items() if k != "profile"}
             for pr in profiles
@@ -707,37 +776,38 @@ def localize_scan(
     return res, info
 
 
-def _cost(prob: _Problem, pos, inten, u, x, soft: float) -> float:
+def _cost(prob: _Problem, pos, inten, u, x, soft: float, down=None) -> float:
     """Soft-L1 cost of the search receivers' residual (the joint solve's objective)."""
     r = prob.direct(u, x)
     if len(pos):
-        r = r - shading_matrix(prob.points, prob.normals, pos, prob.visibility(pos)) @ inten
+        r = r - shading_matrix(prob.points, prob.normals, pos, prob.visibility(pos, down)) @ inten
     return _soft_cost(r / prob.scale, soft)
 
 
-def _prune(prob: _Problem, pos, inten, u, x, bounds, soft: float, ratio: float):
+def _prune(prob: _Problem, pos, inten, u, x, bounds, soft: float, ratio: float, down=None):
     """Drop lights the data do not need: leave each out (weakest first), re-solve, and drop
     it when the cost grows by less than ``ratio`` (the thesis's real scenes drop weak lights,
     §6.6.3; 2D: :func:`~reroom.localize.solve.prune_lights`). Returns the lights, the other
-    lights' strengths and, per light tried, the cost ratio measured."""
+    lights' strengths, the ``down`` flags and, per light tried, the cost ratio measured."""
     tried: list[dict] = []
+    down = np.zeros(len(pos), bool) if down is None else np.asarray(down, bool)
     while len(pos) > 1:
         # The same solve on both sides: a re-solve alone can lower the cost.
-        pos, inten, x, _ = _joint_fit(prob, pos, inten, u, x, bounds, soft)
-        base = _cost(prob, pos, inten, u, x, soft)
+        pos, inten, x, _ = _joint_fit(prob, pos, inten, u, x, bounds, soft, down)
+        base = _cost(prob, pos, inten, u, x, soft, down)
         dropped = False
         for i in np.argsort(inten):
             keep = np.arange(len(pos)) != i
-            p2, i2, x2, _ = _joint_fit(prob, pos[keep], inten[keep], u, x, bounds, soft)
-            grow = _cost(prob, p2, i2, u, x2, soft) / max(base, 1e-300)
+            p2, i2, x2, _ = _joint_fit(prob, pos[keep], inten[keep], u, x, bounds, soft, down[keep])
+            grow = _cost(prob, p2, i2, u, x2, soft, down[keep]) / max(base, 1e-300)
             tried.append({"position": pos[i].tolist(), "cost_ratio_without": grow})
             if grow < ratio:
-                pos, inten, x, dropped = p2, i2, x2, True
+                pos, inten, x, down, dropped = p2, i2, x2, down[keep], True
                 tried[-1]["dropped"] = True
                 break
         if not dropped:
             break
-    return pos, inten, x, tried
+    return pos, inten, x, down, tried
 
 
 def _soft_cost(r: np.ndarray, scale: float) -> float:
@@ -755,6 +825,8 @@ def _goniometric_test(
     layout: dict,
     opt: ScanLocalizeOptions,
     verts: np.ndarray | None = None,
+    vert_labels: np.ndarray | None = None,
+    down: np.ndarray | None = None,
 ) -> list[dict | None]:
     """Test each light as a goniometric light (intensity by inclination) at other heights.
 
@@ -783,7 +855,7 @@ def _goniometric_test(
     edges = np.linspace(0.0, np.pi, opt.height_bins + 1)
     solid = 2.0 * np.pi * (np.cos(edges[:-1]) - np.cos(edges[1:]))
     target = prob.direct(u, np.zeros(prob.other.shape[1]))
-    vis = prob.visibility(pos)
+    vis = prob.visibility(pos, down)
     s_all = shading_matrix(prob.points, prob.normals, pos, vis)
     scale = opt.soft_scale * prob.scale
     for k in range(len(pos)):
@@ -821,23 +893,62 @@ def _goniometric_test(
         j = int(np.argmin(costs_a))
         mount = None
         if opt.mount_test and verts is not None:
-            mount = _mount_test(prob.caster, verts, cands, costs_a, profiles[j], j, solid, opt)
+
+            def evaluate(q, base=base, b=b, p_n=p_n, n_n=n_n):
+                f = point_light_transfer(prob.caster, p_n, n_n, q, [0.0, 0.0, 1.0], basis)
+                a = np.hstack([base, f])
+                coef = _nonneg_fit(a, b)
+                return _soft_cost(b - a @ coef, scale), coef[-basis.bins :]
+
+            mount = _mount_test(
+                prob.caster, verts, cands, costs_a, profiles[j], j, solid, opt, vert_labels,
+                evaluate,
+            )  # fmt: skip
             if mount["mounted"]:
                 j = mount["index"]
-        profile = profiles[j]
+            elif vert_labels is not None and opt.keep_enclosed:
+                # A light inside a fitting the scan shows (a shade around it) is where the
+                # fitting is: the search's height, not the weakly determined cost curve's.
+                if _enclosed(verts, vert_labels, pos[k], opt.mount_radius):
+                    j = int(np.argmin(np.abs(cands[:, 2] - pos[k, 2])))
+                    mount["enclosed"] = True
+        place, profile, cost_j = cands[j], profiles[j], float(costs_a[j])
+        if mount is not None and mount["mounted"] and "position" in mount:
+            place, profile = np.asarray(mount.pop("position")), mount.pop("profile")
+            cost_j = mount["cost_ratio"] * float(costs_a.min())
+            mount["position"] = place.tolist()
         out.append({
-            "position": cands[j].tolist(),
-            "moved_m": float(np.linalg.norm(cands[j] - pos[k])),
+            "position": place.tolist(),
+            "moved_m": float(np.linalg.norm(place - pos[k])),
             "profile": profile.tolist(),
             "mean_intensity": float(profile @ solid / (4.0 * np.pi)),
             "cost_isotropic": iso_cost,
             "cost_goniometric_decision": float(min(coarse)),
-            "cost_goniometric": float(costs_a[j]),
+            "cost_goniometric": cost_j,
             "heights": cands[:, 2].round(3).tolist(),
             "costs": costs_a.round(2).tolist(),
             "mount": mount,
         })  # fmt: skip
     return out
+
+
+def _enclosed(verts: np.ndarray, labels: np.ndarray, p: np.ndarray, radius: float) -> bool:
+    """Is ``p`` inside a fitting the scan shows (a lamp's shade around the bulb)?
+
+    Vertices other than wall, floor and ceiling within ``radius`` of ``p`` horizontally
+    and vertically must surround it: their directions around its vertical cover at least
+    6 of 8 sectors (a lamp's pole beside a light found below the shade covers one).
+    """
+    d = verts - p
+    body = (
+        (np.linalg.norm(d[:, :2], axis=1) < radius)
+        & (np.abs(d[:, 2]) < radius)
+        & ~np.isin(labels, (WALL, FLOOR, CEILING))
+    )
+    if not body.any():
+        return False
+    sector = np.floor((np.arctan2(d[body, 1], d[body, 0]) + np.pi) / (np.pi / 4)).astype(int) % 8
+    return len(np.unique(sector)) >= 6
 
 
 def _mount_test(
@@ -849,6 +960,8 @@ def _mount_test(
     best: int,
     solid: np.ndarray,
     opt: ScanLocalizeOptions,
+    vert_labels: np.ndarray | None = None,
+    evaluate: Callable[[np.ndarray], tuple[float, np.ndarray]] | None = None,
 ) -> dict:
     """Where is the body that shades a light's upper hemisphere?
 
@@ -866,12 +979,27 @@ def _mount_test(
     allow it. A pendant's or a shade's mesh, or a light that lights the ceiling, leaves
     the light where the costs put it. ``cands``/``costs``: the tested positions (along
     one vertical) and their costs; ``best``: the index of the lowest cost.
+
+    A light that sends light upwards needs no body above it, but it needs one to hold
+    it: with ``vert_labels`` (the scan's layout labels) and ``opt.mount_unsupported``,
+    when no vertex other than floor and ceiling lies within ``mount_radius`` of its
+    vertical below the surface above (no lamp, no shade, no stand, no wall a sconce could
+    hang on), nothing holds the light where the costs put
+    it, and it is mounted on the surface above under the same condition on the costs.
+    (``box_points``: a wide-beam downlight fitted 0.15 m above the floor sends 12 % of
+    its flux up; on the floor lamps the shade is in the scan.)
+
+    With ``evaluate(position) -> (cost, profile)`` (the goniometric test's fit at any
+    position) and ``opt.mount_shift``, the mounted light's x, y are refitted too, on a
+    0.05 m grid within ``mount_shift`` of the vertical: a light found low is found with
+    its x, y off, and the comparison is between the best of both placements.
     """
     half = len(profile) // 2
     total = float(profile @ solid)
     up = float(profile[:half] @ solid[:half]) / total if total > 0 else 1.0
     res: dict = {"upward_flux": up, "mounted": False}
-    if up > opt.mount_up_flux:
+    unsupported = up > opt.mount_up_flux
+    if unsupported and (vert_labels is None or not opt.mount_unsupported):
         res["reason"] = "the light sends light upwards: nothing needs to shade it"
         return res
     p = cands[best]
@@ -885,21 +1013,42 @@ def _mount_test(
     body = (
         near & (verts[:, 2] > p[2] - opt.mount_radius) & (verts[:, 2] < top - opt.mount_clearance)
     )
+    if unsupported:  # what could hold it, at any height below: not floor or ceiling
+        body = near & (verts[:, 2] < top - opt.mount_clearance)
+        body &= ~np.isin(vert_labels, (FLOOR, CEILING))
     res["fitting_vertices"] = int(body.sum())
     if body.any():
-        res["reason"] = "the scan shows a body above or around the light (a fitting)"
+        res["reason"] = (
+            "the light sends light upwards and the scan shows what holds it"
+            if unsupported
+            else "the scan shows a body above or around the light (a fitting)"
+        )
         return res
     band = np.flatnonzero((cands[:, 2] >= top - opt.mount_depth) & (cands[:, 2] < top))
     if band.size == 0:
         res["reason"] = "no tested height just below the surface above"
         return res
     j = int(band[np.argmin(costs[band])])
-    ratio = float(costs[j] / max(costs[best], 1e-300))
+    cost_top = float(costs[j])
+    if evaluate is not None and opt.mount_shift > 0:
+        n = int(round(opt.mount_shift / 0.05))
+        steps = 0.05 * np.arange(-n, n + 1)
+        for dx in steps:
+            for dy in steps:
+                if dx == 0 and dy == 0:
+                    continue
+                q = cands[j] + [dx, dy, 0.0]
+                c, prof = evaluate(q)
+                if c < cost_top:
+                    cost_top = c
+                    res.update(position=q.tolist(), profile=prof, shift_m=float(np.hypot(dx, dy)))
+    ratio = float(cost_top / max(costs[best], 1e-300))
     res["cost_ratio"] = ratio
     if ratio > 1.0 + opt.mount_tolerance:
         res["reason"] = "the data reject a light just below the surface above"
         return res
-    res.update(mounted=True, index=j, reason="no fitting in the scan: mounted on the surface above")
+    why = "nothing holds the light" if unsupported else "no fitting in the scan"
+    res.update(mounted=True, index=j, reason=f"{why}: mounted on the surface above")
     return res
 
 
