@@ -271,3 +271,18 @@ def test_light_entries_write_both_maps(tmp_path):
     )
     (e2,) = light_entries(result, tmp_path / "plain")
     assert e2["environment_source"] == "cells"
+
+
+def test_frames_that_cannot_see_a_window_are_skipped_before_casting():
+    from reroom.invert.window_env import _may_see_windows
+    from reroom.scan.camera import Frame
+
+    intr = Intrinsics.from_fov(96, 72, 70.0)
+    towards = Frame(0, Path("x.png"), look_at([0.0, 0.6, 1.25], WINDOW.centre), intr)
+    away = Frame(1, Path("x.png"), look_at([0.0, 0.6, 1.25], [0.0, 3.0, 1.25]), intr)
+    # close enough that every corner of the window is outside the image
+    close = Frame(2, Path("x.png"), look_at([0.0, -1.3, 1.25], WINDOW.centre), intr)
+    assert _may_see_windows(towards, [WINDOW])
+    assert not _may_see_windows(away, [WINDOW])
+    assert _may_see_windows(close, [WINDOW])
+    assert not _may_see_windows(towards, [])
