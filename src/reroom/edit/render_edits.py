@@ -24,6 +24,7 @@ import numpy as np
 from reroom.edit.apply import INSERT_PREFIX, edited_scene
 from reroom.edit.edits import EditError, as_ops, edit_document
 from reroom.errors import ScanError
+from reroom.hdr.exposures import load_exposures
 from reroom.io.atomic import atomic_write_json
 from reroom.io.images import write_exr, write_rgb8
 from reroom.scan import Intrinsics
@@ -50,15 +51,6 @@ def encode_response(linear: np.ndarray, lut: np.ndarray) -> np.ndarray:
     lo = hi - 1
     pick = np.where(np.abs(lut[lo] - x) <= np.abs(lut[hi] - x), lo, hi)
     return pick.astype(np.uint8)
-
-
-def load_exposures(scan_dir: Path, meta: dict | None) -> tuple[dict[str, Any], np.ndarray]:
-    """``hdr/exposures.json`` of a scan and the response LUT it names (errors name the file)."""
-    from reroom.hdr.linearize import response_lut
-    from reroom.io.jsonfile import read_json
-
-    doc = read_json(scan_dir / "hdr" / "exposures.json", "run `reroom hdr SCAN` first")
-    return doc, response_lut(doc.get("response", "auto"), meta)
 
 
 def _frame_scale(exposures: dict[str, Any], j: int) -> np.ndarray | None:

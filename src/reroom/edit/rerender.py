@@ -55,7 +55,7 @@ def rerender_inputs(
         medians.
     """
     from reroom.edit.apply import edited_scene
-    from reroom.edit.render_edits import load_exposures
+    from reroom.hdr.exposures import load_exposures
     from reroom.render.frames import FrameRenderer
     from reroom.scan import load_scan
 

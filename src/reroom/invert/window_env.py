@@ -39,7 +39,6 @@ look as before.
 
 from __future__ import annotations
 
-import json
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -161,16 +160,14 @@ class _Accumulator:
 
 
 def _read_exposures(scan: Path) -> tuple[dict, list[Any]]:
-    path = scan / "hdr" / "exposures.json"
+    from reroom.hdr.exposures import frame_scales, read_exposures
+
+    doc = read_exposures(scan)
     try:
-        doc = json.loads(path.read_text())
-        frames = doc["frames"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return doc, frame_scales(doc)
+    except (ValueError, KeyError, TypeError) as exc:
+        path = scan / "hdr" / "exposures.json"
         raise ReroomError(f"{path}: cannot read the frame exposures ({exc!r})") from exc
-    scales: list[Any] = [None] * (max((int(f["index"]) for f in frames), default=-1) + 1)
-    for f in frames:
-        scales[int(f["index"])] = f.get("scale")
-    return doc, scales
 
 
 def _response(doc: dict, meta: dict, note) -> np.ndarray:
