@@ -93,6 +93,7 @@ def run_room(k: int, index: int, args: argparse.Namespace, proposer_parts) -> di
         "ours_s": ours_s,
         "ours_cpu": ours_cpu,
         "ours_iterations": res.iterations,
+        "ours_reason": res.reason,
         "base_rate": float(np.mean(ok)) if ok else float("nan"),
         "base_times": times,
     }
@@ -194,7 +195,17 @@ def main() -> None:
     parts = (pts, nrm, grid, valid)
     rows = []
     for k in (int(x) for x in args.lights.split(",")) if args.configs > 0 else ():
-        rooms = [run_room(k, i, args, parts) for i in range(args.configs)]
+        rooms = []
+        for i in range(args.configs):
+            r = run_room(k, i, args, parts)
+            rooms.append(r)
+            print(
+                f"  {k} lights, room {i}: ours {'solved' if r['ours_ok'] else 'FAILED'} "
+                f"({r['ours_reason']}, {r['ours_iterations']} iterations, {r['ours_s']:.0f} s, "
+                f"{r['ours_cpu']:.0f} CPU s); baseline {r['base_rate']:.2f} of "
+                f"{len(r['base_times'])} starts, load {os.getloadavg()[0]:.1f}",
+                flush=True,
+            )
         base_t = (
             np.concatenate([r["base_times"] for r in rooms]) if args.random_starts else [np.nan]
         )

@@ -25,11 +25,14 @@ from reroom.localize import (
     localize_lights,
     make_scene,
     matches_truth,
+    mean_squared_error,
     medial_axis,
     plot_fields,
+    prune_lights,
     random_lights,
     render_room,
     sample_walls,
+    settings_for,
     shading_jacobian,
     shading_matrix,
     single_round,
@@ -38,6 +41,7 @@ from reroom.localize import (
     voting_field,
 )
 from reroom.localize.fields import ring_offsets
+from reroom.localize.scene2d import light_bounds
 
 BOUNDS = (np.full(2, 1e-3), np.full(2, 1.0 - 1e-3))
 
@@ -316,6 +320,31 @@ def test_refinement_recovers_noiseless_scenes_exactly(n_lights: int, index: int)
         res.positions, res.intensities, scene.positions, scene.intensities, 1e-4, 1e-4
     )
     assert res.mse < 1e-12
+
+
+def test_prune_merges_a_light_split_into_coincident_halves(room, walls) -> None:
+    # An exact solution with one light given as two coincident halves (Table 6.1, 4 lights,
+    # room 3 ended so): both fits are exact to rounding, so the lone light must win.
+    pos = np.array([[0.3, 0.4], [0.7, 0.65]])
+    inten = np.array([2.0, 3.5])
+    meas = walls.measurements(render_room(room, walls, pos, inten))
+    doubled = np.concatenate([pos, pos[1:]])
+    halves = np.array([2.0, 1.75, 1.75])
+    assert mean_squared_error(meas, doubled, halves) < 1e-20
+    p, i, err = prune_lights(meas, doubled, halves, BOUNDS, 0.0025)
+    assert matches_truth(p, i, pos, inten, 1e-6, 1e-6)
+    assert err < 1e-12
+
+
+def test_refinement_reports_no_duplicate_light_in_table_room() -> None:
+    scene = make_scene(4, 3)
+    vote, refine = settings_for(0.0)
+    prop = FieldProposer2D(scene.room, scene.samples, 256, vote)
+    meas = scene.samples.measurements(scene.values)
+    bounds = light_bounds(scene.room, scene.samples)
+    res = localize_lights(meas, prop, bounds, scene.tolerance, refine)
+    assert res.success, res.reason
+    assert matches_truth(res.positions, res.intensities, scene.positions, scene.intensities)
 
 
 def test_single_round_and_noise(room, walls) -> None:

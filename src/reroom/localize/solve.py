@@ -294,6 +294,16 @@ def fit_lights_lm(
 #: noise and gains tens of percent at most.
 DECISIVE = 10.0
 
+#: Errors below this fraction of ``mean(B^2)`` are rounding, not signal: a solution at
+#: 1e-27 and one at 1e-20 are equally exact, and comparing them by ``DECISIVE`` would keep
+#: a light split in two coincident halves (or split one to chase the last digits).
+EXACT = 1e-14
+
+
+def _error_floor(meas: Measurements) -> float:
+    """The mean squared error below which two solutions count as equally exact."""
+    return EXACT * max(float(np.mean(meas.values**2)), 1e-300)
+
 
 def prune_lights(
     meas: Measurements,
@@ -311,6 +321,7 @@ def prune_lights(
     """
     pos, inten = positions, intensities
     err = mean_squared_error(meas, pos, inten, visibility)
+    floor = _error_floor(meas)
     changed = True
     while changed and pos.shape[0] > 1:
         changed = False
@@ -319,7 +330,7 @@ def prune_lights(
         for i in np.argsort(inten * s.sum(axis=0), kind="stable"):
             keep = np.arange(pos.shape[0]) != i
             p2, i2, e2 = fit_lights(meas, pos[keep], inten[keep], bounds, visibility)
-            if e2 < tolerance and e2 < DECISIVE * max(err, 1e-300):
+            if e2 < tolerance and e2 < DECISIVE * max(err, floor):
                 pos, inten, err, changed = p2, i2, e2, True
                 break
     return pos, inten, err
@@ -350,6 +361,7 @@ def split_lights(
     """
     pos, inten = positions, intensities
     err = mean_squared_error(meas, pos, inten, visibility)
+    floor = _error_floor(meas)
     dim = meas.dim
     lo, hi = _bounds(meas, bounds)
     angles = np.pi * np.arange(directions) / directions
@@ -365,7 +377,7 @@ def split_lights(
                 # Trials with the compiled solver (most go nowhere); the winner is
                 # polished with scipy's below.
                 p2, i2, e2 = fit_lights_lm(meas, p0, i0, bounds, visibility, 100)
-                good = e2 * DECISIVE < err or (e2 < accept_below <= err)
+                good = max(e2, floor) * DECISIVE < err or (e2 < accept_below <= err)
                 if good and (best is None or e2 < best[2]):
                     best = (p2, i2, e2)
         if best is None:
