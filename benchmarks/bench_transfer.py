@@ -39,6 +39,7 @@ from reroom.invert import (
     DEFAULT_RAYS_PER_VERTEX,
     CubemapBasis,
     InclinationBasis,
+    LineBasis,
     WindowOpening,
     hemisphere_transfer,
     line_light_transfer,
@@ -189,6 +190,18 @@ def speed_rows(name, caster, mesh, rad, obs, area_of, windows, normals, lamp, tu
     rows.append(
         f"| {name} | line light, {DEFAULT_LINE_SEGMENTS} segments | {len(ok)} | {n / 1e6:.1f} M (max) | "
         f"{dt:.2f} | {cpu:.2f} | {n / dt / 1e6:.2f} M | {load0:.1f} / {os.getloadavg()[0]:.1f} |"
+    )
+    # The same shadow rays, each piece also split at the phi bin edges (LineBasis).
+    line2d = LineBasis(32, 3)
+    load0 = os.getloadavg()[0]
+    c0, t0 = time.process_time(), time.perf_counter()
+    g2 = line_light_transfer(caster, p, nrm, tube["p0"], tube["p1"], [0, 0, 1], line2d)
+    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+    assert np.allclose(g2.reshape(len(ok), 32, 3).sum(axis=2), g, rtol=1e-9, atol=0)
+    rows.append(
+        f"| {name} | line light, {DEFAULT_LINE_SEGMENTS} segments, 32 x 3 (theta, phi) bins | "
+        f"{len(ok)} | {n / 1e6:.1f} M (max) | {dt:.2f} | {cpu:.2f} | {n / dt / 1e6:.2f} M | "
+        f"{load0:.1f} / {os.getloadavg()[0]:.1f} |"
     )
     return rows
 

@@ -69,6 +69,63 @@ def test_point_light_profile_orientation_and_units(tmp_path: Path) -> None:
     assert up.radiance.max() == 0.0
 
 
+def _line_floor_quadrature(pts, p0, p1, grid, fold=True, k=4000):
+    """Floor irradiance of a line light with a constant-per-bin (theta, phi) table."""
+    from reroom.invert.basis import LineBasis
+
+    basis = LineBasis(grid.shape[0], grid.shape[1], fold)
+    t = (np.arange(k) + 0.5) / k
+    xs = p0 + t[:, None] * (p1 - p0)
+    tangent = (p1 - p0) / np.linalg.norm(p1 - p0)
+    e = pts[:, None, :] - xs[None]
+    r2 = (e**2).sum(-1)
+    e = e / np.sqrt(r2)[..., None]
+    along = e @ tangent
+    cos_phi = np.sqrt(1 - along**2)
+    cos_t = (e[..., 2] - along * tangent[2]) / cos_phi
+    j = grid.reshape(-1)[basis.bin_of(cos_t, np.arcsin(along))]
+    return (j * cos_phi * np.clip(-e[..., 2], 0, None) / r2).mean(axis=1) * np.linalg.norm(p1 - p0)
+
+
+def test_line_light_profiles_old_and_new(tmp_path: Path) -> None:
+    from reroom.edit import bake_vertex_radiance
+
+    p0, p1 = np.array([1.4, 1.5, 2.0]), np.array([2.6, 1.5, 2.0])
+    geo = {"p0": p0.tolist(), "p1": p1.tolist(), "d_perp": [0.0, 0.0, 1.0], "radius": 0.02}
+    theta_prof = np.array([0.0, 0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 5.0])
+    grid = np.outer(theta_prof, [1.0, 0.6, 0.2])  # less light along the line
+    new = {
+        "name": "tube",
+        "type": "line",
+        "geometry": geo,
+        "color": [1.0, 1.0, 1.0],
+        "distribution": {
+            "basis": "line",
+            "bins": 8,
+            "phi_bins": 3,
+            "phi_fold": True,
+            "profile": grid.tolist(),
+        },
+    }
+    old = {**new, "distribution": {"basis": "inclination", "bins": 8, "profile": theta_prof}}
+    old["distribution"]["profile"] = theta_prof.tolist()
+    rng = np.random.default_rng(1)
+    pts = np.c_[rng.uniform(0.3, 3.7, (40, 1)), rng.uniform(0.3, 2.7, (40, 1)), np.zeros(40)]
+    normals = np.tile([0.0, 0.0, 1.0], (40, 1))
+    got = {}
+    for name, light in (("new", new), ("old", old)):
+        scene = model_scene(_model(tmp_path / name, [light]), max_depth=2, interpolation="constant")
+        got[name] = bake_vertex_radiance(scene, pts, normals, spp=256).radiance[:, 0]
+    want = ALBEDO / math.pi * _line_floor_quadrature(pts, p0, p1, grid)
+    np.testing.assert_allclose(got["new"], want, rtol=0.03, atol=0.01 * want.max())
+    # A file written before the phi bins (1D profile) renders the separable model.
+    want_old = ALBEDO / math.pi * _line_floor_quadrature(pts, p0, p1, theta_prof[:, None])
+    np.testing.assert_allclose(got["old"], want_old, rtol=0.03, atol=0.01 * want_old.max())
+    bad = {**new, "distribution": {"basis": "line", "phi_bins": 2, "profile": grid.tolist()}}
+    with pytest.raises(ScanError, match="line light 'tube'"):
+        model_scene(_model(tmp_path / "bad", [bad]))
+
+
 def test_table_conversion_and_bad_models(tmp_path: Path) -> None:
     table = point_light_table(PROFILE, "constant", n_theta=181)
     assert table.shape == (181, 2)

@@ -491,3 +491,45 @@ def test_glowing_fitting_does_not_block_its_line_light(tmp_path: Path) -> None:
         got.append(_probe(edited_scene(scan, [], max_depth=2), floor)[:, 0])
     assert np.all(got[0] > 0)  # the line lights the floor
     assert np.all(got[1] == 0)  # an unflagged tube around it would block all of it
+
+
+def test_line_light_with_phi_bins_off_scale_color_and_move(scan: Path, tmp_path: Path) -> None:
+    # A tube whose profile depends on phi (scene.json's (theta, phi) layout): dimming,
+    # recolouring and moving it act on the whole emitter, off removes it.
+    inv = tmp_path / "invert"
+    inv.mkdir()
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    grid = np.outer([0.0, 0.0, 1.0, 2.0, 3.0, 4.0], [1.0, 0.5, 0.2])
+    doc["lights"] = [
+        {
+            "name": "tube",
+            "type": "line",
+            "geometry": {"p0": [0.8, 2.0, 2.2], "p1": [1.8, 2.0, 2.2], "d_perp": [0, 0, 1.0]},
+            "color": [1.0, 1.0, 1.0],
+            "distribution": {"basis": "line", "bins": 6, "phi_bins": 3, "profile": grid.tolist()},
+            "power": [1.0] * 3,
+        }
+    ]
+    doc["albedo_file"] = str(scan / "invert" / "albedo.ply")
+    (inv / "scene.json").write_text(json.dumps(doc))
+    pts = np.array([[1.5, 2.6, 0.0], [2.0, 2.8, 0.0], [3.0, 1.0, 0.0]])  # clear of the block
+
+    def probe(edits):
+        return _probe(edited_scene(scan, edits, invert_dir=inv, max_depth=2), pts, spp=16)
+
+    base = probe([])
+    assert np.all(base > 0)
+    got = probe(
+        [
+            {"op": "light", "name": "tube", "scale": 3.0},
+            {"op": "light", "name": "tube", "color": [1.0, 0.5, 0.25]},
+        ]
+    )
+    np.testing.assert_allclose(got, base * [3.0, 1.5, 0.75], rtol=1e-5)
+    assert probe([{"op": "light", "name": "tube", "off": True}]).max() == 0.0
+    # Moved 1 m along +x (same direction): the floor 1 m further along sees what it saw.
+    moved = probe([{"op": "light", "name": "tube", "move_to": [2.3, 2.0, 2.2]}])
+    shifted = _probe(
+        edited_scene(scan, [], invert_dir=inv, max_depth=2), pts - [1.0, 0.0, 0.0], spp=16
+    )
+    np.testing.assert_allclose(moved[:2], shifted[:2], rtol=0.02)

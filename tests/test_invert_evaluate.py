@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from reroom.invert.basis import InclinationBasis
+from reroom.invert.basis import InclinationBasis, LineBasis
 from reroom.invert.evaluate import (
     distribution_relative_l2,
     true_line_profile,
     true_point_profile,
     true_window_cells,
 )
-from reroom.invert.export import inclination_power
+from reroom.invert.export import inclination_power, line_light_power
 from reroom.io.ies import IESProfile, read_ies, write_ies
 from reroom.io.mesh import write_ply
 
@@ -143,15 +143,76 @@ def test_bare_tube_is_2rL_in_every_bin(tmp_path):
     np.testing.assert_allclose(prof, np.broadcast_to(expected, prof.shape))
 
 
+def test_bare_tube_power_in_every_basis(tmp_path):
+    tube = _tube()
+    scene = _scene(tmp_path, {})
+    for phi_bins, fold in ((1, True), (4, True), (5, False)):
+        prof = true_line_profile(
+            tube, scene, np.array([0.0, 0.0, 1.0]), 8, samples=16, phi_bins=phi_bins, fold=fold
+        )
+        assert prof.shape == (8 * phi_bins, 3)
+        np.testing.assert_allclose(prof[:, 1], 2 * 0.016 * 12.5)
+        power = line_light_power(prof, 1.2, phi_bins, fold)
+        np.testing.assert_allclose(power, np.pi**2 * 1.2 * 2 * 0.016 * np.array([12, 12.5, 13]))
+
+
 def test_tube_under_a_plate_sends_nothing_up(tmp_path):
+    # A plate 5 cm above the tube, reaching 0.4 m past its ends. Within 22.5 deg of the
+    # plane perpendicular to the tube nothing leaves upwards; further along the tube,
+    # light from near its ends passes the plate's ends.
     tube = _tube()
     plate = trimesh.creation.box(extents=[2.0, 1.0, 0.01])
     plate.apply_translation([0.6, 0.0, 2.55])
     scene = _scene(tmp_path, {"housing": plate})
-    prof = true_line_profile(tube, scene, np.array([0.0, 0.0, 1.0]), samples=256)[:, 1]
-    centres = InclinationBasis(32).bin_centres()
-    assert np.all(prof[centres < np.radians(75)] == 0)
+    up = np.array([0.0, 0.0, 1.0])
+    prof = true_line_profile(tube, scene, up, samples=256, phi_bins=4)[:, 1].reshape(32, 4)
+    centres = LineBasis(32, 4).theta_centres()
+    assert np.all(prof[centres < np.radians(75), 0] == 0)
     np.testing.assert_allclose(prof[centres > np.radians(95)], 2 * 0.016 * 12.5)
+    assert prof[(centres > np.radians(55)) & (centres < np.radians(75)), 3].min() > 0
+    # The separable basis's single phi bin: the same light, averaged over phi.
+    one = true_line_profile(tube, scene, up, samples=256)
+    assert line_light_power(one, 1.2)[1] == pytest.approx(
+        line_light_power(prof.reshape(-1), 1.2, 4), rel=0.01
+    )
+
+
+def test_open_ended_channel_matches_its_closed_form(tmp_path):
+    # Two tall baffles 7 cm either side of a thin tube, exactly as long as it, open at
+    # both ends: a ray leaving from x along (theta, phi) reaches a baffle after
+    # g tan|phi| / sin(theta) along the tube, so it escapes past the baffle's end from the
+    # last such stretch of the tube: the fraction min(1, g tan|phi| / (L sin theta)).
+    g, length, r = 0.07, 1.2, 0.001
+    tube = _tube(radius=r)
+    baffles = []
+    for y in (-g, g):
+        b = trimesh.creation.box(extents=[length, 0.002, 1.0])
+        b.apply_translation([length / 2, y + np.sign(y) * 0.001, 2.5])
+        baffles.append(b)
+    scene = _scene(tmp_path, {"baffles": trimesh.util.concatenate(baffles)})
+    basis = LineBasis(8, 4)
+    prof = true_line_profile(
+        tube,
+        scene,
+        np.array([0.0, 0.0, 1.0]),
+        8,
+        samples=256,
+        angles=4,
+        fixture_radius=3.0,
+        phi_bins=4,
+        phi_angles=64,
+    )[:, 0].reshape(8, 4) / (2 * r * 12.0)
+    # The closed form averaged over each bin (theta uniform, phi weighted by cos^2).
+    t_e, p_e = basis.theta_edges(), basis.phi_edges()
+    for k in (3, 4):  # sideways: the baffles (1 m tall) stop every ray not escaping
+        for j in range(4):
+            th = np.linspace(t_e[k], t_e[k + 1], 201)[:, None]
+            ph = np.linspace(p_e[j], p_e[j + 1], 2001)[None, :-1]
+            ph = ph + (p_e[j + 1] - p_e[j]) / 4000  # midpoints
+            frac = np.minimum(1.0, g * np.tan(ph) / (length * np.sin(th)))
+            want = np.average(frac.mean(axis=0), weights=np.cos(ph[0]) ** 2)
+            assert prof[k, j] == pytest.approx(want, rel=0.05, abs=0.003), (k, j, want)
+    assert prof[3:5, 0].max() < 0.02 and prof[3:5, 3].min() > 0.15
 
 
 def test_window_cells_of_a_constant_sky(tmp_path):

@@ -110,3 +110,87 @@ def test_fill_poorly_seen_bins():
     np.testing.assert_allclose(fill_poorly_seen(profile, np.zeros(6), 0.01), profile)
     with pytest.raises(ValueError, match="differ"):
         fill_poorly_seen(profile, support[:3], 0.01)
+
+
+def test_fill_poorly_seen_on_a_graph():
+    from reroom.invert.basis import LineBasis
+    from reroom.invert.export import fill_poorly_seen
+
+    # On a chain the harmonic fill is the linear interpolation of the 1D rule.
+    profile = np.array([1.0, 2.0, 50.0, 4.0, 7.0, 9.0, 30.0])
+    support = np.array([10.0, 10.0, 0.01, 10.0, 0.0, 10.0, 0.02])
+    chain = np.stack([np.arange(6), np.arange(1, 7)], axis=1)
+    np.testing.assert_allclose(
+        fill_poorly_seen(profile, support, 0.01, chain), fill_poorly_seen(profile, support, 0.01)
+    )
+    # A (theta, phi) grid: a poorly seen bin takes the mean of its well-seen neighbours.
+    basis = LineBasis(3, 3)
+    grid = np.arange(9.0).reshape(3, 3) ** 2
+    sup = np.full((3, 3), 5.0)
+    sup[1, 1] = 0.001  # poorly seen
+    sup[0, 0] = 0.0  # unseen: 0
+    out = fill_poorly_seen(grid.ravel(), sup.ravel(), 0.01, basis.adjacency()[0]).reshape(3, 3)
+    assert out[1, 1] == pytest.approx((grid[0, 1] + grid[2, 1] + grid[1, 0] + grid[1, 2]) / 4)
+    assert out[0, 0] == 0.0
+    keep = sup > 0.01
+    np.testing.assert_array_equal(out[keep], grid[keep])
+
+
+def test_line_light_power_with_phi_bins():
+    from reroom.invert.basis import LineBasis
+    from reroom.invert.export import line_light_power, line_profile_grid
+
+    # A bare tube (i = 2 r L everywhere): pi^2 * length * i, whatever the bins.
+    assert line_light_power(np.full(32, 0.4), 1.2) == pytest.approx(np.pi**2 * 1.2 * 0.4)
+    for fold in (True, False):
+        p = line_light_power(np.full((32 * 4, 3), 0.4), 1.2, 4, fold)
+        np.testing.assert_allclose(p, np.pi**2 * 1.2 * 0.4)
+    # A profile constant in phi has the separable model's power.
+    theta_prof = np.linspace(0.0, 2.0, 16)
+    two = np.repeat(theta_prof, 5)
+    assert line_light_power(two, 2.0, 5) == pytest.approx(line_light_power(theta_prof, 2.0))
+    # Power weights: the phi bin nearest the axis carries the least.
+    w = LineBasis(4, 4).power_weights().reshape(4, 4)
+    assert np.all(np.diff(w, axis=1) < 0)
+    with pytest.raises(ValueError, match="multiple"):
+        line_light_power(np.ones(10), 1.0, 4)
+    # scene.json readers: the 2D layout and the 1D profile of older files.
+    grid, fold = line_profile_grid({"profile": [[1, 2], [3, 4]], "phi_bins": 2, "phi_fold": False})
+    assert grid.shape == (2, 2) and fold is False
+    grid, fold = line_profile_grid({"basis": "inclination", "bins": 3, "profile": [1, 2, 3]})
+    assert grid.shape == (3, 1) and fold is True
+    with pytest.raises(ValueError, match="expected"):
+        line_profile_grid({"profile": [[1, 2, 3]], "phi_bins": 2})
+
+
+@pytest.mark.parametrize("phi_bins", [1, 3])
+def test_line_light_outputs(tmp_path: Path, phi_bins: int) -> None:
+    from reroom.invert.export import line_light_power, line_profile_grid
+    from reroom.io.ies import read_ies
+    from reroom.lights.lightset import Light, LightSet, write_lights
+
+    scan = _box_scan(tmp_path)
+    nv = len(read_ply(scan / "hdr" / "hdr_mesh.ply").vertices)
+    geom = {"p0": [1.0, 1.25, 2.2], "p1": [2.0, 1.25, 2.2], "d_perp": [0, 0, 1.0], "radius": 0.02}
+    tube = Light("tube", "line", "user", geom, {}, "test")
+    write_lights(LightSet([tube], [], np.full(nv, -1, np.int32)), scan / "lights")
+    opts = InvertOptions(rays_per_receiver=64, receiver_voxel=0.25, bins=8, line_phi_bins=phi_bins)
+    result = run_invert(scan, None, opts)
+    block = result.lights[0]
+    assert block.size == 8 * phi_bins and len(block.adjacency) == len(block.adjacency_weights)
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    dist = doc["lights"][0]["distribution"]
+    assert dist["basis"] == "line" and dist["bins"] == 8 and dist["phi_bins"] == phi_bins
+    grid, fold = line_profile_grid(dist)
+    assert grid.shape == (8, phi_bins) and fold is True
+    assert np.asarray(dist["support"]).shape == (8, phi_bins)
+    assert np.asarray(dist["profile_solved"]).shape == (8, phi_bins)
+    color = np.asarray(doc["lights"][0]["color"])
+    np.testing.assert_allclose(
+        doc["lights"][0]["power"], line_light_power(grid.ravel(), 1.0, phi_bins) * color
+    )
+    ies = read_ies(scan / "invert" / doc["lights"][0]["ies"])
+    # vertical angle 0 is the nadir: theta = pi, phi = 0
+    np.testing.assert_allclose(ies.candela[:, 0], grid[-1, 0], rtol=1e-5)
+    assert ies.candela.max() <= grid.max() * (1 + 1e-5)
+    assert (scan / "invert" / "gonio_tube.png").is_file()

@@ -207,3 +207,117 @@ def test_per_vertex_albedo_flags_nonphysical_values() -> None:
     np.testing.assert_allclose(albedo[10:], truth.albedo[problem.cluster[10:]], rtol=1e-6)
     assert nonphysical[:10].all() and not nonphysical[10:].any()
     assert albedo[:10].max() > 1.0  # kept, not clipped
+
+
+def _room_with_a_tube(phi_bins: int, fold: bool = True, seed: int = 12):
+    """Eq. 5.6 in a closed 4 x 3 x 2.6 m room lit by a ray-traced line light (2D bins)."""
+    import trimesh
+
+    from reroom.invert import LineBasis, line_light_transfer
+    from reroom.rays import RayCaster
+
+    box = trimesh.creation.box(extents=(4.0, 3.0, 2.6))
+    box.apply_translation((2.0, 1.5, 1.3))
+    for _ in range(4):
+        box = box.subdivide()
+    box.invert()  # normals into the room
+    p, n = np.asarray(box.vertices), np.asarray(box.vertex_normals)
+    basis = LineBasis(8, phi_bins, fold)
+    f = line_light_transfer(
+        RayCaster(box), p, n, [1.4, 1.5, 2.2], [2.6, 1.5, 2.2], [0, 0, 1], basis, 8
+    )
+    rng = np.random.default_rng(seed)
+    cluster = np.where(p[:, 2] < 1e-6, 1, np.where(p[:, 2] > 2.6 - 1e-6, 2, 0))
+    albedo = np.array([[0.70, 0.65, 0.55], [0.35, 0.25, 0.15], [0.85, 0.85, 0.85]])
+    indirect = rng.uniform(0.05, 0.3, size=(len(p), 1)) * np.array([1.0, 0.95, 0.85])
+    theta, phi = np.meshgrid(basis.theta_centres(), basis.phi_centres(), indexing="ij")
+    # Brighter downwards and less towards the line's axis: not separable in theta, phi.
+    profile = (1.2 + 0.8 * np.cos(np.pi - theta)) * (
+        1.0 - 0.5 * np.abs(phi) / (np.pi / 2) * (0.3 + 0.7 * theta / np.pi)
+    )
+    color = np.array([0.9, 1.0, 0.8]) / np.linalg.norm([0.9, 1.0, 0.8])
+    intens = profile.reshape(-1, 1) * color
+    radiance = albedo[cluster] / np.pi * (indirect + f @ intens)
+    adj, weights = basis.adjacency(phi_weight=2.0)
+    problem = InverseProblem(
+        radiance=radiance,
+        indirect=indirect,
+        cluster=cluster,
+        cluster_names=["wall", "floor", "ceiling"],
+        transfer=sp.csr_matrix(f),
+        lights=[LightBlock("tube", "line", basis.size, True, adj, weights)],
+    )
+    return problem, albedo, intens, f
+
+
+@pytest.mark.parametrize("fold", [True, False])
+def test_exact_line_light_with_phi_bins_is_recovered(fold) -> None:
+    problem, albedo, intens, f = _room_with_a_tube(phi_bins=3, fold=fold)
+    seen = (f > 0).sum(axis=0) > 0
+    assert seen.sum() >= 18  # most of the (theta, phi) bins have receivers
+    result = solve_lighting(problem, EXACT)
+    assert result.converged
+    np.testing.assert_allclose(result.albedo, albedo, atol=1e-6)
+    got = result.intensities["tube"]
+    assert np.abs(got[seen] - intens[seen]).max() < 1e-6 * np.abs(intens).max()
+    # the phi split is real: a separable fit of the same data is off by far more
+    sep = np.asarray(f.reshape(len(f), 8, 3).sum(axis=2))
+    flat = InverseProblem(
+        problem.radiance,
+        problem.indirect,
+        problem.cluster,
+        problem.cluster_names,
+        sp.csr_matrix(sep),
+        [LightBlock("tube", "line", 8, True)],
+    )
+    assert np.abs(solve_lighting(flat, EXACT).albedo - albedo).max() > 1e-3
+
+
+def test_pair_weights_shape_the_fill_of_unseen_bins() -> None:
+    # Three bins of a chain, the middle one unseen: with the smoothness alone it is the
+    # weighted mean of its neighbours, (w1 a + w2 b) / (w1 + w2).
+    rng = np.random.default_rng(13)
+    n = 400
+    cluster = rng.integers(0, 3, n)
+    f = np.zeros((n, 3))
+    f[: n // 2, 0] = rng.uniform(0.1, 1, n // 2)
+    f[n // 2 :, 2] = rng.uniform(0.1, 1, n - n // 2)
+    albedo = np.array([[0.7, 0.6, 0.5], [0.3, 0.3, 0.2], [0.8, 0.8, 0.8]])
+    indirect = rng.uniform(0.1, 0.3, (n, 3))
+    truth = np.array([[1.0], [0.0], [4.0]]) * np.ones(3)
+    radiance = albedo[cluster] / np.pi * (indirect + f @ truth)
+    for w, expected in (((1.0, 1.0), 2.5), ((3.0, 1.0), 1.75)):
+        block = LightBlock("lamp", "point", 3, False, np.array([[0, 1], [1, 2]]), np.array(w))
+        problem = InverseProblem(
+            radiance, indirect, cluster, ["wall", "floor", "ceiling"], sp.csr_matrix(f), [block]
+        )
+        opts = SolveOptions(smooth_lambda=1e-6, huber_delta=None, reweight_c=None)
+        got = solve_lighting(problem, opts).intensities["lamp"]
+        np.testing.assert_allclose(got[1], expected, rtol=1e-3)
+    bad = LightBlock("lamp", "point", 3, False, np.array([[0, 1], [1, 2]]), np.array([1.0]))
+    with pytest.raises(SolveError, match="one finite weight"):
+        solve_lighting(
+            InverseProblem(radiance, indirect, cluster, ["a", "b", "c"], sp.csr_matrix(f), [bad])
+        )
+
+
+def test_box_qp_matches_bvls() -> None:
+    import scipy.linalg
+    import scipy.optimize
+
+    from reroom.invert.solve import _box_qp
+
+    rng = np.random.default_rng(14)
+    for _ in range(100):
+        k = int(rng.integers(2, 40))
+        a = rng.normal(size=(k + 3, k))
+        h = a.T @ a + 1e-3 * np.eye(k)
+        g = 3 * rng.normal(size=k)
+        lo = np.where(rng.random(k) < 0.6, -rng.uniform(0, 2, k), 0.0)
+        hi = np.where(rng.random(k) < 0.3, rng.uniform(0, 2, k), np.inf)
+        s = _box_qp(h, g, lo, hi)
+        rf = scipy.linalg.cholesky(h)
+        b = -scipy.linalg.solve_triangular(rf, g, trans="T")
+        ref = scipy.optimize.lsq_linear(rf, b, bounds=(lo, hi), method="bvls", tol=1e-14).x
+        assert np.all(s >= lo) and np.all(s <= hi)
+        np.testing.assert_allclose(s, ref, atol=1e-9 * (1 + np.abs(ref).max()))

@@ -12,6 +12,7 @@ from reroom.hdr.observe import vertex_normals
 from reroom.invert import (
     CubemapBasis,
     InclinationBasis,
+    LineBasis,
     SHBasis,
     WindowOpening,
     hemisphere_transfer,
@@ -118,6 +119,64 @@ def test_inclination_bins():
     theta = np.array([0.0, np.pi / 64 - 1e-9, np.pi / 2 + 1e-9, np.pi])
     assert b.bin_of(np.cos(theta)).tolist() == [0, 0, 16, 31]
     assert b.bin_of([1.5, -2.0]).tolist() == [0, 31]
+
+
+def _line_angles(d: np.ndarray, tangent: np.ndarray, up: np.ndarray):
+    """``cos(theta)`` around the line from ``up`` and signed ``phi`` of unit directions."""
+    along = d @ tangent
+    perp = d - np.outer(along, tangent)
+    return perp @ up / np.linalg.norm(perp, axis=1), np.arcsin(np.clip(along, -1, 1))
+
+
+@pytest.mark.parametrize("fold", [True, False])
+def test_line_basis_bins_solid_angles_and_adjacency(fold):
+    b = LineBasis(8, 3, fold)
+    assert b.size == 24
+    t, up = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])
+    # Bin centres round-trip through bin_of, on either side of up (theta folds).
+    d = b.directions(up, t)
+    assert np.all(b.bin_of(*_line_angles(d, t, up)) == np.arange(b.size))
+    mirror = d * [1, -1, 1]
+    assert np.all(b.bin_of(*_line_angles(mirror, t, up)) == np.arange(b.size))
+    # Solid angles: sum 4 pi, each the share of 400k random directions (5 sigma).
+    sa = b.solid_angles()
+    assert sa.sum() == pytest.approx(4 * np.pi, rel=1e-12)
+    rng = np.random.default_rng(0)
+    dirs = unit_rows(rng.normal(size=(400_000, 3)))
+    count = np.bincount(b.bin_of(*_line_angles(dirs, t, up)), minlength=b.size)
+    p = sa / (4 * np.pi)
+    assert np.all(np.abs(count / len(dirs) - p) < 5 * np.sqrt(p * (1 - p) / len(dirs)))
+    # Power weights: flux per metre of i = 1 in a bin, the mean of cos(phi) over the bin x 4 pi.
+    cos_phi = np.sqrt(1 - (dirs @ t) ** 2)
+    mc = np.bincount(b.bin_of(*_line_angles(dirs, t, up)), cos_phi, b.size) * 4 * np.pi / len(dirs)
+    np.testing.assert_allclose(b.power_weights(), mc, rtol=0.05)  # ~16k samples a bin
+    assert b.power_weights().sum() == pytest.approx(np.pi**2, rel=1e-12)  # bare line: pi^2 i
+    # Adjacency: exactly the pairs of bins whose centres are one bin apart in one angle.
+    pairs, weights = b.adjacency(phi_weight=5.0)
+    it, ip = np.divmod(np.arange(b.size), 3)
+    brute = {
+        (i, j)
+        for i in range(b.size)
+        for j in range(i + 1, b.size)
+        if abs(it[i] - it[j]) + abs(ip[i] - ip[j]) == 1
+    }
+    assert {tuple(x) for x in pairs.tolist()} == brute and len(pairs) == len(brute)
+    is_phi = it[pairs[:, 0]] == it[pairs[:, 1]]
+    np.testing.assert_array_equal(weights, np.where(is_phi, 5.0, 1.0))
+
+
+def test_line_basis_with_one_phi_bin_is_the_inclination_basis():
+    b, inc = LineBasis(32, 1), InclinationBasis(32)
+    np.testing.assert_array_equal(b.theta_edges(), inc.bin_edges())
+    cos_t = np.linspace(-1, 1, 101)
+    np.testing.assert_array_equal(b.bin_of(cos_t, np.linspace(-1.5, 1.5, 101)), inc.bin_of(cos_t))
+    pairs, weights = b.adjacency()
+    np.testing.assert_array_equal(pairs, np.stack([np.arange(31), np.arange(1, 32)], axis=1))
+    np.testing.assert_array_equal(weights, np.ones(31))
+    np.testing.assert_allclose(b.power_weights(), np.full(32, np.pi * np.pi / 32))
+    assert LineBasis.from_basis(inc).size == 32 and LineBasis.from_basis(b) is b
+    with pytest.raises(ValueError, match="at least one"):
+        LineBasis(8, 0)
 
 
 # -- point lights -----------------------------------------------------------------------------
@@ -239,6 +298,87 @@ def test_line_light_shadow_converges_with_segments():
     ]
     assert err[0] > err[1] > err[2]
     assert err[2] < 0.02
+
+
+def eq_5_11_phi_quadrature(p, n, p0, p1, basis, samples=20_000):
+    """Eq. 5.11 without occlusion by a fine midpoint rule, per ``phi`` bin of ``basis``."""
+    d = p1 - p0
+    length = np.linalg.norm(d)
+    dh = d / length
+    x = (np.arange(samples) + 0.5) / samples * length
+    out = np.zeros((len(p), basis.phi_bins))
+    for i in range(len(p)):
+        a = p0 + x[:, None] * dh - p[i]  # towards the light
+        r = np.linalg.norm(a, axis=1)
+        a_perp = a - (a @ dh)[:, None] * dh
+        cos_r = np.maximum(a @ n[i], 0) / r
+        cos_phi = np.linalg.norm(a_perp, axis=1) / r
+        phi = np.arcsin(np.clip(-(a @ dh) / r, -1, 1))  # emission direction: line -> receiver
+        j = basis.phi_bin_of(phi)
+        out[i] = np.bincount(j, cos_r / r**2 * cos_phi, basis.phi_bins) * length / samples
+    return out
+
+
+@pytest.mark.parametrize("fold", [True, False])
+def test_line_light_phi_bins_match_quadrature(fold):
+    plane = grid_plane(3.0, 0.5)
+    caster = RayCaster(plane)
+    rng = np.random.default_rng(2)
+    p0, p1 = np.array([-0.6, 0.1, 2.2]), np.array([0.6, 0.1, 2.2])
+    # Floor receivers (under and beyond the ends) and tilted ones (horizon clipping).
+    p = np.concatenate([plane.vertices[::3], rng.uniform([-2, -2, 0.5], [2, 2, 2.0], (20, 3))])
+    n = np.concatenate(
+        [
+            np.tile([0.0, 0.0, 1.0], (len(plane.vertices[::3]), 1)),
+            unit_rows(rng.normal(size=(20, 3))),
+        ]
+    )
+    basis = LineBasis(32, 5, fold)
+    f = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], basis, segments=4)
+    assert f.shape == (len(p), basis.size)
+    grid = f.reshape(len(p), 32, 5)
+    # One theta bin per receiver, as the separable model's; its phi bins split eq. 5.11.
+    old = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], InclinationBasis(32), 4)
+    np.testing.assert_allclose(grid.sum(axis=2), old, rtol=1e-12, atol=1e-15 * old.max())
+    assert ((grid.sum(axis=2) > 0).sum(axis=1) <= 1).all()
+    ref = eq_5_11_phi_quadrature(p, n, p0, p1, basis)
+    # The midpoint rule errs by O(1/samples) where a bin edge cuts the line.
+    np.testing.assert_allclose(grid.sum(axis=1), ref, rtol=0, atol=2e-4 * ref.max())
+    # Receivers beyond an end see it only at large |phi| (not in the bin of phi = 0);
+    # folded, both ends alike.
+    beyond = (np.abs(p[:, 0]) > 1.3) & (np.abs(p[:, 1] - 0.1) < 0.3) & (old.sum(1) > 0)
+    assert beyond.sum() >= 2
+    assert np.all(grid[beyond].sum(axis=1)[:, basis.phi_bin_of(0.0)] == 0)
+    if not fold:  # past p1 (x > 0.6) the light leaves towards +phi, past p0 towards -phi
+        plus = grid.sum(axis=1)[:, 3:].sum(1)
+        minus = grid.sum(axis=1)[:, :2].sum(1)
+        assert np.all(minus[beyond & (p[:, 0] > 0)] == 0) and np.all(
+            plus[beyond & (p[:, 0] > 0)] > 0
+        )
+        assert np.all(plus[beyond & (p[:, 0] < 0)] == 0) and np.all(
+            minus[beyond & (p[:, 0] < 0)] > 0
+        )
+    # Eq. 5.12 (midpoint): each piece in the bin of its centre; same sums as the 1D one.
+    mid = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], basis, 8, quadrature="midpoint")
+    mid1 = line_light_transfer(
+        caster, p, n, p0, p1, [0, 0, 1], InclinationBasis(32), 8, quadrature="midpoint"
+    )
+    np.testing.assert_allclose(mid.reshape(len(p), 32, 5).sum(2), mid1, rtol=1e-12)
+
+
+def test_line_light_phi_bins_share_the_shadow_rays():
+    plane = grid_plane(2.0, 0.1)
+    blocker = trimesh.creation.box(extents=(0.3, 3.0, 0.05))
+    blocker.apply_translation([0.25, 0.0, 1.2])
+    caster = RayCaster(trimesh.util.concatenate([plane, blocker]))
+    p = plane.vertices
+    n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    p0, p1 = np.array([-0.8, 0.0, 2.0]), np.array([0.8, 0.0, 2.0])
+    one = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], InclinationBasis(8), 16)
+    two = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], LineBasis(8, 4), 16)
+    free = line_light_transfer(RayCaster(plane), p, n, p0, p1, [0, 0, 1], LineBasis(8, 4), 16)
+    assert (one.sum(1) < 0.95 * free.sum(1)).sum() > 50  # a real penumbra
+    np.testing.assert_allclose(two.reshape(len(p), 8, 4).sum(2), one, rtol=1e-12)
 
 
 # -- hemisphere transfer: area lights, distant light, indirect --------------------------------

@@ -132,3 +132,70 @@ def test_power_and_bad_parameters(mi) -> None:
         line_light(P0, P1, 1.0, up=(1, 0, 0))
     with pytest.raises(ValueError, match=">= 0"):
         line_light(P0, P1, [1.0, -1.0])
+
+
+def _quadrature_2d(pts, profile, interpolation, fold=True, k: int = 4000):
+    """Eq. 5.11 times J(theta, phi) on the floor (normal +z), by a fine midpoint rule."""
+    from reroom.render.line_emitter import line_profile_value
+
+    t = (np.arange(k) + 0.5) / k
+    xs = P0 + t[:, None] * (P1 - P0)
+    tangent = (P1 - P0) / np.linalg.norm(P1 - P0)
+    e = pts[:, None, :] - xs[None]
+    r2 = (e**2).sum(-1)
+    e = e / np.sqrt(r2)[..., None]
+    along = e @ tangent
+    e_perp = e - along[..., None] * tangent
+    cos_phi = np.linalg.norm(e_perp, axis=-1)
+    theta = np.arccos(np.clip(e_perp[..., 2] / np.maximum(cos_phi, 1e-12), -1, 1))
+    j = line_profile_value(profile, theta, interpolation, np.arcsin(along), fold)
+    cos_in = np.clip(-e[..., 2], 0, None)
+    return (j * cos_phi * cos_in / r2).mean(axis=1) * np.linalg.norm(P1 - P0)
+
+
+@pytest.mark.parametrize(("interpolation", "fold"), [("constant", True), ("linear", False)])
+def test_theta_phi_profile_matches_quadrature(mi, interpolation, fold) -> None:
+    from reroom.render.line_emitter import line_light
+
+    # 8 x 3 bins: down-facing, and (unfolded) brighter towards p1 than towards p0.
+    theta_part = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 2.0, 4.0, 6.0])
+    phi_part = np.array([1.0, 0.5, 0.1]) if fold else np.array([0.2, 1.0, 3.0])
+    profile = np.outer(theta_part, phi_part) + np.outer(theta_part > 0, [0.0, 1.0, 0.0])
+    rng = np.random.default_rng(4)
+    pts = np.c_[rng.uniform(-3, 3, (40, 2)), np.zeros(40)]
+    light = line_light(P0, P1, profile, interpolation=interpolation, phi_fold=fold)
+    got = _floor_radiance(mi, light, pts, 256)
+    want = ALBEDO / math.pi * _quadrature_2d(pts, profile, interpolation, fold)
+    rel = np.abs(got[:, 0] - want) / want.max()
+    assert rel.max() < 0.03, rel.max()
+    assert got[:, 0].sum() == pytest.approx(want.sum(), rel=0.01)
+
+
+def test_separable_table_in_two_dimensions_is_the_1d_one(mi) -> None:
+    from reroom.render.line_emitter import line_light, line_light_power, line_profile_value
+
+    prof = np.array([0.0, 1.0, 2.0, 4.0])
+    theta = np.linspace(0, np.pi, 50)
+    for interp in ("constant", "linear"):
+        flat = line_profile_value(prof, theta, interp)
+        grid = line_profile_value(np.repeat(prof[:, None], 3, 1), theta, interp, theta - 1.5)
+        np.testing.assert_allclose(grid, flat)
+        np.testing.assert_allclose(
+            line_light_power(np.repeat(prof[:, None], 3, 1), 1.5, interpolation=interp),
+            line_light_power(prof, 1.5, interpolation=interp),
+            rtol=1e-4,
+        )
+    # A (n, 1) table is the separable one; a uniform table has pi^2 L J whatever its bins.
+    d = line_light(P0, P1, prof[:, None])
+    assert np.array(d["profile"]).shape == (4,) and "phi_fold" not in d
+    assert line_light_power(np.full((4, 5), 2.0), 1.5) == pytest.approx(
+        math.pi**2 * 1.5 * 2.0, rel=1e-4
+    )
+    # Folded: the bins hold |phi|, so the same value on either side of the perpendicular plane.
+    two = np.array([[1.0, 2.0, 3.0]] * 4)
+    v = line_profile_value(two, np.full(2, 1.0), "constant", np.array([-1.2, 1.2]))
+    assert v[0] == v[1] == 3.0
+    v = line_profile_value(two, np.full(2, 1.0), "constant", np.array([-1.2, 1.2]), fold=False)
+    assert v.tolist() == [1.0, 3.0]
+    with pytest.raises(ValueError, match=">= 0"):
+        line_light(P0, P1, -two)

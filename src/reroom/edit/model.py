@@ -20,7 +20,9 @@ renders it.
   ``window_<name>_cells.exr``).
 * **Point lights**: ``reroom_goniometric`` with the solved inclination profile about the
   light's axis (``interpolation`` between bin centres, or constant per bin as solved).
-* **Line lights**: ``reroom_line`` with the solved profile around the line.
+* **Line lights**: ``reroom_line`` with the solved profile: ``(theta, phi)`` bins around
+  and along the line (``distribution.phi_bins``), or the separable ``theta`` profile of
+  files written before the ``phi`` bins.
 * **Glowing fittings**: faces of vertices ``albedo.ply`` flags as ``light`` that are not
   an area light's (a tube's own surface) are left out: their light is in the solved
   distribution, and their mesh would enclose the emitter.
@@ -182,14 +184,20 @@ def model_scene(
                 color=light.get("color", [1.0, 1.0, 1.0]),
             )
         elif kind == "line":
-            dist = light["distribution"]
+            from reroom.invert.export import line_profile_grid
+
+            try:
+                grid, fold = line_profile_grid(light["distribution"])
+            except (KeyError, ValueError) as exc:
+                raise ScanError(scene_path, f"line light {name!r}: {exc}") from exc
             scene[f"light_{k:02d}"] = line_light(
                 geo["p0"],
                 geo["p1"],
-                np.asarray(dist["profile"], float),
+                grid[:, 0] if grid.shape[1] == 1 else grid,
                 up=geo.get("d_perp", [0.0, 0.0, 1.0]),
                 color=light.get("color", [1.0, 1.0, 1.0]),
                 interpolation=interpolation,
+                phi_fold=fold,
             )
         else:
             raise ReroomError(f"{scene_path}: light {name!r} has an unknown type {kind!r}")

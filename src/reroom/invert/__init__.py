@@ -7,7 +7,7 @@ irradiance each basis light would give them; see ``docs/invert.md``.
 """
 
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
-from reroom.invert.basis import CubemapBasis, InclinationBasis, SHBasis
+from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis, SHBasis
 from reroom.invert.direct import DEFAULT_LINE_SEGMENTS, line_light_transfer, point_light_transfer
 from reroom.invert.subsample import nearest_receivers, spread_transfer, voxel_receivers
 from reroom.invert.transfer import (
@@ -25,6 +25,7 @@ __all__ = [
     "CubemapBasis",
     "HemisphereTransfer",
     "InclinationBasis",
+    "LineBasis",
     "SHBasis",
     "WindowOpening",
     "area_light_transfer",

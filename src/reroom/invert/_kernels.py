@@ -1,10 +1,12 @@
-"""Numba kernels of the hemisphere transfer: ray generation and per-ray accumulation.
+"""Numba kernels of the transfer: hemisphere rays, per-ray accumulation, line-light pieces.
 
 Plain single-threaded loops (the ray casting between them already uses every
 core); ``cache=True`` keeps the compiled code between runs. Their logic is that
 of :func:`reroom.rays.sample_hemisphere` (jittered grid, concentric map, Duff et
 al.'s frame) and :func:`reroom.invert.windows.rays_through_windows`, which stay
 the readable references (``tests/test_invert_transfer.py`` compares them).
+:func:`line_phi_integrals` is eq. 5.11's closed form of
+:func:`reroom.invert.direct._line_integral`, split by ``phi`` bin.
 """
 
 from __future__ import annotations
@@ -149,3 +151,72 @@ def accumulate(
             if vdata[c, 6] >= 0:
                 pane[r] = True
                 p_light[p] += bk
+
+
+@nb.njit(cache=True, inline="always")
+def _line_primitive(h: float, c0: float, c1: float, s: float) -> float:
+    """Primitive in ``s`` of ``h (c0 + c1 s) / (h^2 + s^2)^2`` (see ``direct._line_integral``)."""
+    q = h * h + s * s
+    i0 = s / (2.0 * h * h * q) + math.atan2(s, h) / (2.0 * h * h * h)
+    i1 = -1.0 / (2.0 * q)
+    return h * (c0 * i0 + c1 * i1)
+
+
+@nb.njit(cache=True)
+def line_phi_integrals(
+    h: np.ndarray,
+    c0: np.ndarray,
+    c1: np.ndarray,
+    s_foot: np.ndarray,
+    seg_edges: np.ndarray,
+    tan_edges: np.ndarray,
+    fold: bool,
+    out: np.ndarray,
+) -> None:
+    """Eq. 5.11's unoccluded integral of every line piece, split by ``phi`` bin.
+
+    For receiver ``i`` (distance ``h[i]`` from the line, foot point ``s_foot[i]`` along
+    it, ``n . a = c0[i] + c1[i] s`` with ``s`` the position relative to the foot) and
+    piece ``k`` (``seg_edges[k] .. seg_edges[k + 1]`` along the line), writes to
+    ``out[i, k, j]`` the integral of ``h max(0, c0 + c1 s) / (h^2 + s^2)^2`` over the
+    part of the piece whose emission angle ``phi`` lies in bin ``j``.
+
+    The direction from the line point at ``s`` to the receiver has ``tan(phi) = -s / h``
+    (``phi > 0`` towards the line's end ``p1``), so bin ``j`` (edges ``phi_j, phi_j+1``,
+    ``tan_edges[j] = tan(phi_j)``, infinite at ``+-pi/2``) is ``s in [-h tan(phi_j+1),
+    -h tan(phi_j)]``; folded (``|phi|`` bins from 0), also its mirror image
+    ``s in [h tan(phi_j), h tan(phi_j+1)]``. Each piece is clipped to where the receiver
+    faces the line, then to each bin's interval, and integrated in closed form.
+    """
+    n = h.shape[0]
+    n_seg = seg_edges.shape[0] - 1
+    n_phi = tan_edges.shape[0] - 1
+    for i in range(n):
+        hi_, a0, a1 = h[i], c0[i], c1[i]
+        # Where the receiver faces the line: c0 + c1 s > 0.
+        lo_f, hi_f = -np.inf, np.inf
+        if a1 > 0.0:
+            lo_f = -a0 / a1
+        elif a1 < 0.0:
+            hi_f = -a0 / a1
+        elif a0 <= 0.0:
+            for k in range(n_seg):
+                for j in range(n_phi):
+                    out[i, k, j] = 0.0
+            continue
+        for k in range(n_seg):
+            sa = max(seg_edges[k] - s_foot[i], lo_f)
+            sb = min(seg_edges[k + 1] - s_foot[i], hi_f)
+            for j in range(n_phi):
+                total = 0.0
+                # signed bin: s in [-h tan(phi_j+1), -h tan(phi_j)]
+                a = max(sa, -hi_ * tan_edges[j + 1])
+                b = min(sb, -hi_ * tan_edges[j])
+                if b > a:
+                    total += _line_primitive(hi_, a0, a1, b) - _line_primitive(hi_, a0, a1, a)
+                if fold:  # mirror image: s in [h tan(phi_j), h tan(phi_j+1)]
+                    a = max(sa, hi_ * tan_edges[j])
+                    b = min(sb, hi_ * tan_edges[j + 1])
+                    if b > a:
+                        total += _line_primitive(hi_, a0, a1, b) - _line_primitive(hi_, a0, a1, a)
+                out[i, k, j] = total

@@ -10,7 +10,10 @@ angle) belongs to:
   functions in the thesis);
 * :class:`InclinationBasis` -- piecewise constant in one angle ``theta in [0, pi]``:
   the inclination from a point light's axis, or a line light's angle around its
-  line (32 bins in the thesis).
+  line (32 bins in the thesis);
+* :class:`LineBasis` -- a line light's non-separable profile, piecewise constant in
+  ``theta`` around the line and ``phi`` out of the plane perpendicular to it (the
+  thesis's separable ``i(theta) cos(phi)`` is its ``phi_bins = 1`` case).
 
 World directions are in the scan's frame: metres, +Z up.
 
@@ -30,7 +33,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["CubemapBasis", "InclinationBasis", "SHBasis"]
+__all__ = ["CubemapBasis", "InclinationBasis", "LineBasis", "SHBasis"]
 
 
 def _unit_directions(directions: ArrayLike) -> np.ndarray:
@@ -265,3 +268,200 @@ class InclinationBasis:
         """``(bins,)`` bin centres in radians."""
         e = self.bin_edges()
         return (e[:-1] + e[1:]) / 2.0
+
+
+class LineBasis:
+    """A line light's profile ``i(theta, phi)``, piecewise constant on ``theta x phi`` bins.
+
+    A piece ``dx`` of the line sends the radiant intensity ``i(theta, phi) cos(phi) dx``
+    along the unit direction ``e`` (from the line towards the receiver), where
+
+    * ``theta in [0, pi]`` is the angle around the line between ``d_perp`` (up made
+      perpendicular to the line) and ``e_perp``, the part of ``e`` perpendicular to the
+      line, folded over both sides of ``d_perp`` as in :class:`InclinationBasis` (so
+      ``theta`` does not wrap: bins 0 and ``theta_bins - 1`` are opposite directions);
+    * ``phi`` is the angle between ``e`` and the plane perpendicular to the line,
+      ``sin(phi) = e . t`` with ``t`` the unit vector from ``p0`` to ``p1``: positive
+      towards ``p1``. ``cos(phi)`` is the projected length of ``dx`` seen from ``e``
+      (the factor ``|a_perp| / |a|`` of eq. 5.11), so a bare tube of radius ``r`` and
+      radiance ``L`` has ``i = 2 r L`` everywhere.
+
+    ``theta`` has ``theta_bins`` equal bins of ``[0, pi]``. ``phi`` has ``phi_bins``
+    equal bins of ``|phi| in [0, pi / 2]`` when ``fold`` is true (the default: a tube's
+    two ends are alike, so light leaving towards ``p0`` and towards ``p1`` at the same
+    ``|phi|`` share a bin, which halves the unknowns and doubles each bin's data; keeping
+    the sign measured no better on the synthetic `furnished` tube, docs/invert.md), else
+    of ``phi in [-pi / 2, pi / 2]`` (for a fixture open at one end only). With ``phi_bins = 1`` the profile does not depend on
+    ``phi``: the thesis's separable model ``i(theta) cos(phi)`` of eq. 5.11-5.12, with
+    the same bins and values as an :class:`InclinationBasis` of ``theta_bins``.
+
+    Element ``k = theta_bin * phi_bins + phi_bin`` (theta-major), so a profile vector
+    reshapes to ``(theta_bins, phi_bins)``.
+
+    Parameters
+    ----------
+    theta_bins:
+        Bins of ``theta`` (the thesis uses 32).
+    phi_bins:
+        Bins of ``phi`` (1: the separable model).
+    fold:
+        Whether ``phi`` and ``-phi`` share a bin.
+
+    Attributes
+    ----------
+    theta_bins, phi_bins, fold:
+        As given.
+    size:
+        Number of basis functions, ``theta_bins * phi_bins``.
+    """
+
+    def __init__(self, theta_bins: int = 32, phi_bins: int = 1, fold: bool = True) -> None:
+        if int(theta_bins) < 1 or int(phi_bins) < 1:
+            raise ValueError(f"need at least one bin of each angle, got {theta_bins} x {phi_bins}")
+        self.theta_bins = int(theta_bins)
+        self.phi_bins = int(phi_bins)
+        self.fold = bool(fold)
+        self.size = self.theta_bins * self.phi_bins
+
+    def __repr__(self) -> str:
+        return (
+            f"LineBasis(theta_bins={self.theta_bins}, phi_bins={self.phi_bins}, fold={self.fold})"
+        )
+
+    @classmethod
+    def from_basis(cls, basis: LineBasis | InclinationBasis) -> LineBasis:
+        """``basis`` itself, or the separable (``phi_bins = 1``) basis of an inclination basis."""
+        if isinstance(basis, LineBasis):
+            return basis
+        if isinstance(basis, InclinationBasis):
+            return cls(basis.bins, 1)
+        raise TypeError(f"not a line-light basis: {basis!r}")
+
+    # -- bins --------------------------------------------------------------------------------
+
+    def theta_edges(self) -> np.ndarray:
+        """``(theta_bins + 1,)`` edges of the ``theta`` bins, radians, 0 to ``pi``."""
+        return np.linspace(0.0, np.pi, self.theta_bins + 1)
+
+    def theta_centres(self) -> np.ndarray:
+        """``(theta_bins,)`` centres of the ``theta`` bins, radians."""
+        e = self.theta_edges()
+        return (e[:-1] + e[1:]) / 2.0
+
+    def phi_edges(self) -> np.ndarray:
+        """``(phi_bins + 1,)`` edges of the ``phi`` bins, radians.
+
+        ``0 .. pi/2`` (of ``|phi|``) when folded, else ``-pi/2 .. pi/2``.
+        """
+        lo = 0.0 if self.fold else -np.pi / 2
+        return np.linspace(lo, np.pi / 2, self.phi_bins + 1)
+
+    def phi_centres(self) -> np.ndarray:
+        """``(phi_bins,)`` centres of the ``phi`` bins, radians (of ``|phi|`` when folded)."""
+        e = self.phi_edges()
+        return (e[:-1] + e[1:]) / 2.0
+
+    def index(self, theta_bin: ArrayLike, phi_bin: ArrayLike) -> np.ndarray:
+        """Flat element index of ``(theta_bin, phi_bin)`` pairs."""
+        return np.asarray(theta_bin, np.int64) * self.phi_bins + np.asarray(phi_bin, np.int64)
+
+    def theta_bin_of(self, cos_theta: ArrayLike) -> np.ndarray:
+        """``theta`` bin (int64) of each ``cos(theta)`` (clipped to ``[-1, 1]``)."""
+        theta = np.arccos(np.clip(np.asarray(cos_theta, dtype=np.float64), -1.0, 1.0))
+        return np.minimum((theta * (self.theta_bins / np.pi)).astype(np.int64), self.theta_bins - 1)
+
+    def phi_bin_of(self, phi: ArrayLike) -> np.ndarray:
+        """``phi`` bin (int64) of each signed ``phi`` in radians (clipped to ``[-pi/2, pi/2]``)."""
+        p = np.clip(np.asarray(phi, dtype=np.float64), -np.pi / 2, np.pi / 2)
+        lo = 0.0 if self.fold else -np.pi / 2
+        x = (np.abs(p) if self.fold else p) - lo
+        width = (np.pi / 2 - lo) / self.phi_bins
+        return np.clip((x / width).astype(np.int64), 0, self.phi_bins - 1)
+
+    def bin_of(self, cos_theta: ArrayLike, phi: ArrayLike) -> np.ndarray:
+        """Flat element index of each direction given by ``cos(theta)`` and signed ``phi``."""
+        return self.index(self.theta_bin_of(cos_theta), self.phi_bin_of(phi))
+
+    def directions(self, d_perp: ArrayLike, tangent: ArrayLike) -> np.ndarray:
+        """``(size, 3)`` unit directions at the bins' centres (on the ``+side`` half).
+
+        ``tangent`` is the line's unit direction ``p0 -> p1``; ``d_perp`` is made
+        perpendicular to it; ``side = tangent x d_perp``.
+        """
+        t = np.asarray(tangent, float) / np.linalg.norm(tangent)
+        u = np.asarray(d_perp, float) - (np.asarray(d_perp, float) @ t) * t
+        u /= np.linalg.norm(u)
+        side = np.cross(t, u)
+        th, ph = np.meshgrid(self.theta_centres(), self.phi_centres(), indexing="ij")
+        th, ph = th.ravel(), ph.ravel()
+        return (
+            np.cos(ph)[:, None] * (np.cos(th)[:, None] * u + np.sin(th)[:, None] * side)
+            + np.sin(ph)[:, None] * t
+        )
+
+    # -- measures ----------------------------------------------------------------------------
+
+    def _fold_factor(self) -> float:
+        # theta is folded over both sides of d_perp (x2); phi over both signs when folded.
+        return 2.0 * (2.0 if self.fold else 1.0)
+
+    def solid_angles(self) -> np.ndarray:
+        """``(size,)`` solid angle of each bin's directions, both folds included (sum ``4 pi``).
+
+        ``d omega = cos(phi) dphi dtheta`` over the full circle of ``theta``: a bin covers
+        ``fold * dtheta * (sin phi_hi - sin phi_lo)``.
+        """
+        e = self.phi_edges()
+        per_phi = np.sin(e[1:]) - np.sin(e[:-1])
+        dtheta = np.pi / self.theta_bins
+        return np.tile(self._fold_factor() * dtheta * per_phi, self.theta_bins)
+
+    def power_weights(self) -> np.ndarray:
+        """``(size,)`` flux per metre of line per unit ``i`` in each bin.
+
+        ``integral_bin cos(phi) d omega = fold * dtheta * integral cos^2(phi) dphi``, so the
+        power of a profile ``i`` on a line of length ``L`` is ``L * power_weights() @ i``;
+        with ``phi_bins = 1`` a bin weighs ``pi * dtheta`` (eq. 5.11's ``pi L int i dtheta``).
+        """
+        e = self.phi_edges()
+
+        def prim(p: np.ndarray) -> np.ndarray:  # integral of cos^2
+            return p / 2.0 + np.sin(2.0 * p) / 4.0
+
+        per_phi = prim(e[1:]) - prim(e[:-1])
+        dtheta = np.pi / self.theta_bins
+        return np.tile(self._fold_factor() * dtheta * per_phi, self.theta_bins)
+
+    def adjacency(self, phi_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Neighbouring bins, for the solve's smoothness term.
+
+        Pairs ``i < j`` of bins that share an edge: neighbours in ``theta`` at the same
+        ``phi`` (a chain: ``theta`` is folded and does not wrap, as the point lights'
+        :class:`InclinationBasis` chain), and neighbours in ``phi`` at the same ``theta``
+        (a chain across ``phi = 0`` when not folded; folded, bin 0 borders its own mirror
+        image, which needs no pair). All ``theta`` bins meet at ``|phi| = pi / 2`` (along
+        the line), where the intensity ``i cos(phi)`` vanishes whatever ``i``; they are not
+        coupled there.
+
+        Parameters
+        ----------
+        phi_weight:
+            Weight of the ``phi`` pairs (the ``theta`` pairs weigh 1).
+
+        Returns
+        -------
+        pairs : ndarray of int64, shape (M, 2)
+            ``theta`` pairs first (``phi_bins * (theta_bins - 1)``), then ``phi`` pairs
+            (``theta_bins * (phi_bins - 1)``). With ``phi_bins = 1`` exactly the chain
+            ``(k, k + 1)`` of an :class:`InclinationBasis`.
+        weights : ndarray, shape (M,)
+            1 for the ``theta`` pairs, ``phi_weight`` for the ``phi`` pairs.
+        """
+        nt, npb = self.theta_bins, self.phi_bins
+        it, ip = np.meshgrid(np.arange(nt - 1), np.arange(npb), indexing="ij")
+        theta_pairs = np.stack([self.index(it, ip).ravel(), self.index(it + 1, ip).ravel()], 1)
+        it, ip = np.meshgrid(np.arange(nt), np.arange(npb - 1), indexing="ij")
+        phi_pairs = np.stack([self.index(it, ip).ravel(), self.index(it, ip + 1).ravel()], 1)
+        pairs = np.concatenate([theta_pairs, phi_pairs]).astype(np.int64).reshape(-1, 2)
+        weights = np.concatenate([np.ones(len(theta_pairs)), np.full(len(phi_pairs), phi_weight)])
+        return pairs, weights

@@ -1,9 +1,12 @@
 """Transfer from point and line lights to surface points, with shadow rays (eq. 5.10-5.12).
 
-Both lights are decomposed into :class:`~reroom.invert.basis.InclinationBasis`
-bins: a receiver gets light from exactly one bin, so each row of the result has
-one non-zero entry. Values are irradiance per unit radiant intensity of the bin
-(``I cos / d^2`` for a point light).
+Point lights are decomposed into :class:`~reroom.invert.basis.InclinationBasis` bins, a
+receiver getting light from exactly one bin. Line lights are decomposed into
+:class:`~reroom.invert.basis.LineBasis` bins of ``(theta, phi)``: a receiver sees the
+line under one ``theta`` but, along the line, under a range of ``phi``, so its row has
+up to ``phi_bins`` non-zero entries, all in its ``theta`` bin (one entry with the
+separable ``phi_bins = 1`` model of the thesis, or an ``InclinationBasis``). Values are
+irradiance per unit radiant intensity of the bin (``I cos / d^2`` for a point light).
 
 Angle conventions (they differ from the thesis on purpose)
 ----------------------------------------------------------
@@ -17,7 +20,10 @@ Angle conventions (they differ from the thesis on purpose)
   angle (thesis: ``acos(a_perp_hat . d_perp)`` with ``a`` towards the light, ``pi``
   minus ours). It does not depend on the position along the line, and it is
   symmetric about ``d_perp`` (both sides of a ceiling tube share bins), as in
-  the thesis.
+  the thesis. ``phi`` is the angle of the emission direction out of the plane
+  perpendicular to the line, positive towards ``p1``; it does depend on the position
+  along the line (``tan(phi) = (s_foot - x) / h`` for the line point ``x`` and a
+  receiver at distance ``h`` whose foot point is ``s_foot``).
 
 Visibility is a shadow ray from the receiver (offset along its normal) to the
 light point, stopped where it enters a sphere (point light) or cylinder (line
@@ -25,7 +31,10 @@ light) of radius ``clearance`` around the light, so that the light's own bulb or
 tube mesh does not shadow it. A scanned tube of radius ``r`` hides its axis from
 every oblique ray: the clearance must exceed ``r`` (the default 3 cm covers T5
 and T8 tubes, radius 0.8 and 1.3 cm, and the synthetic scans' 1.6 cm, with room
-for scan noise); dark baffles beside the tube still cast shadows.
+for scan noise); dark baffles beside the tube then still cast shadows. The pipeline
+passes 0.3 m for both kinds (``InvertOptions.point_clearance``, ``line_clearance``): the
+fixture (shade, baffles, housing) is then part of the solved distribution, the light as
+seen from outside it (docs/invert.md, "Line lights in channels").
 """
 
 from __future__ import annotations
@@ -33,7 +42,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from reroom.invert.basis import InclinationBasis
+from reroom.invert import _kernels
+from reroom.invert.basis import InclinationBasis, LineBasis
 from reroom.rays import RayCaster
 
 __all__ = ["DEFAULT_LINE_SEGMENTS", "line_light_transfer", "point_light_transfer"]
@@ -162,6 +172,16 @@ def _line_integral(h: np.ndarray, c0: np.ndarray, c1: np.ndarray, sa: np.ndarray
     return np.where(facing, prim(hi) - prim(lo), 0.0)
 
 
+def _tan_phi_edges(basis: LineBasis) -> np.ndarray:
+    """``tan`` of the ``phi`` bin edges, exactly infinite at ``+-pi/2``."""
+    e = basis.phi_edges()
+    t = np.tan(e)
+    t[np.isclose(e, np.pi / 2)] = np.inf
+    t[np.isclose(e, -np.pi / 2)] = -np.inf
+    t[e == 0.0] = 0.0
+    return t
+
+
 def line_light_transfer(
     caster: RayCaster,
     points: ArrayLike,
@@ -169,7 +189,7 @@ def line_light_transfer(
     p0: ArrayLike,
     p1: ArrayLike,
     up: ArrayLike,
-    basis: InclinationBasis,
+    basis: LineBasis | InclinationBasis,
     segments: int = DEFAULT_LINE_SEGMENTS,
     *,
     quadrature: str = "exact",
@@ -184,6 +204,13 @@ def line_light_transfer(
     result is exact without occluders for any ``segments`` and only the shadow
     edges are resolved to a piece; ``"midpoint"`` is eq. 5.12 literally.
 
+    With a :class:`~reroom.invert.basis.LineBasis` of ``phi_bins > 1``, each visible
+    piece is further cut where the emission angle ``phi`` crosses a bin edge (at
+    ``s = s_foot - h tan(phi_edge)`` along the line, and its mirror image when the basis
+    folds ``phi``), and each part goes to its own ``(theta, phi)`` bin, again in closed
+    form, so the bins' sum is the separable transfer. (``"midpoint"`` gives each
+    piece's whole value to the bin of its centre's ``phi``.)
+
     Parameters
     ----------
     caster:
@@ -196,7 +223,9 @@ def line_light_transfer(
         ``(3,)`` reference direction for the angle (world up); made perpendicular
         to the line, it is the thesis's ``d_perp``.
     basis:
-        The angle bins.
+        The angle bins: a :class:`~reroom.invert.basis.LineBasis`, or an
+        :class:`~reroom.invert.basis.InclinationBasis` for the separable model (the
+        same as a ``LineBasis`` with ``phi_bins = 1``).
     segments:
         Shadow-ray pieces along the line.
     quadrature:
@@ -210,7 +239,7 @@ def line_light_transfer(
 
     Returns
     -------
-    ``(N, bins)`` float64.
+    ``(N, basis.size)`` float64; column ``theta_bin * phi_bins + phi_bin``.
 
     Raises
     ------
@@ -221,6 +250,8 @@ def line_light_transfer(
         raise ValueError(f"segments must be positive, got {segments}")
     if quadrature not in ("exact", "midpoint"):
         raise ValueError(f"quadrature must be 'exact' or 'midpoint', not {quadrature!r}")
+    lb = LineBasis.from_basis(basis)
+    n_phi = lb.phi_bins
     p, n, starts = _points_normals(points, normals, offset, caster)
     a0 = np.asarray(p0, dtype=np.float64).reshape(3)
     d = np.asarray(p1, dtype=np.float64).reshape(3) - a0
@@ -248,31 +279,45 @@ def line_light_transfer(
 
     edges = np.linspace(0.0, length, segments + 1)
     mids = (edges[:-1] + edges[1:]) / 2.0
-    total = np.zeros(len(p))
-    # Points in batches so that points x segments shadow rays fit in memory.
-    step = max(1, _BATCH // segments)
+    tan_edges = _tan_phi_edges(lb)
+    total = np.zeros((len(p), n_phi))
+    # Points in batches so that points x segments (x phi bins) values fit in memory.
+    step = max(1, _BATCH // (segments * n_phi))
     for b0 in range(0, len(p), step):
         b = slice(b0, min(len(p), b0 + step))
         sf = s_foot[b, None]
-        if quadrature == "exact":
+        if quadrature == "exact" and n_phi == 1:
             w = _line_integral(
                 hh[b, None], c0[b, None], c1[b, None], edges[None, :-1] - sf, edges[None, 1:] - sf
+            )[:, :, None]
+        elif quadrature == "exact":
+            nb = len(hh[b])
+            w = np.empty((nb, segments, n_phi))
+            _kernels.line_phi_integrals(
+                hh[b], c0[b], c1[b], s_foot[b], edges, tan_edges, lb.fold, w
             )
         else:
             s = mids[None, :] - sf
             q = hh[b, None] ** 2 + s * s
-            w = hh[b, None] * np.maximum(c0[b, None] + c1[b, None] * s, 0) / q**2
-            w = w * (length / segments)
-        w = np.where(ok[b, None], w, 0.0)
-        rows, segs = np.nonzero(w > 0)
+            wm = hh[b, None] * np.maximum(c0[b, None] + c1[b, None] * s, 0) / q**2
+            wm = wm * (length / segments)
+            # The whole piece goes to the bin of its centre's phi (tan phi = -s / h).
+            j = lb.phi_bin_of(np.arctan2(-s, hh[b, None]))
+            w = np.zeros(wm.shape + (n_phi,))
+            np.put_along_axis(w, j[..., None], wm[..., None], axis=2)
+        w = np.where(ok[b, None, None], w, 0.0)
+        rows, segs = np.nonzero(w.sum(axis=2) > 0)
         targets = a0 + mids[segs, None] * dh
         # Stop where the ray enters the cylinder of radius `clearance` around the line:
         # clearance / sin(angle between the ray and the line) short of the target.
         ray = targets - starts[b][rows]
         sin = np.linalg.norm(np.cross(ray, dh), axis=1) / np.linalg.norm(ray, axis=1)
         free = _unoccluded(caster, starts[b][rows], targets, clearance / np.maximum(sin, 1e-6))
-        total[b] = np.bincount(rows, w[rows, segs] * free, minlength=w.shape[0])
-    out = np.zeros((len(p), basis.bins))
-    lit = np.flatnonzero(total > 0)
-    out[lit, basis.bin_of(cos_theta[lit])] = total[lit]
+        nb = w.shape[0]
+        for j in range(n_phi):
+            total[b, j] = np.bincount(rows, w[rows, segs, j] * free, minlength=nb)
+    out = np.zeros((len(p), lb.size))
+    lit = np.flatnonzero(total.sum(axis=1) > 0)
+    cols = lb.theta_bin_of(cos_theta[lit])[:, None] * n_phi + np.arange(n_phi)[None, :]
+    out[lit[:, None], cols] = total[lit]
     return out

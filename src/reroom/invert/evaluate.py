@@ -21,9 +21,12 @@ The only code of :mod:`reroom.invert` that reads ``ground_truth/``. What is comp
   - point (:func:`true_point_profile`): per inclination bin, the solid-angle mean of
     ``I_true(d) V(d)`` with ``I_true`` exactly as the generator's goniometric emitter
     evaluates it and ``V`` a ray cast from the light against the fixture;
-  - line (:func:`true_line_profile`): ``2 r L`` per metre times the fraction of the
-    tube's projected area (along its length and across its width) from which the
-    direction is not blocked by the fixture;
+  - line (:func:`true_line_profile`): per ``(theta, phi)`` bin of the solved
+    :class:`~reroom.invert.basis.LineBasis`, ``2 r L`` per metre times the fraction of
+    the tube's projected area (along its length and across its width) from which the
+    direction is not blocked by the fixture, ``cos^2(phi)``-weighted over the bin so that
+    its power is the power leaving the fixture (light out of a channel's open ends
+    included);
   - window (:func:`true_window_cells`): the HDRI (times ``scale``) averaged per cube
     cell over the directions that leave the room through the window.
 
@@ -38,6 +41,8 @@ The only code of :mod:`reroom.invert` that reads ``ground_truth/``. What is comp
   vertex, recomputed here by the pipeline's own transfer functions on the scan mesh,
   since ``scene.json`` does not record it), and over the *well-seen* bins (summed
   transfer at least 1 % of the largest bin's); windows over the cells the window shows.
+  Line lights also get ``relative_l2_theta``: estimate and truth each reduced to
+  ``theta`` (the power-weighted mean over ``phi``), comparable across ``phi_bins``.
 
 :func:`run_invert_true_radiance` is an **evaluation-only shortcut**: it runs the
 pipeline with the true per-vertex radiance instead of the HDR mesh's, to measure the
@@ -53,8 +58,13 @@ from typing import Any
 import numpy as np
 
 from reroom.errors import ScanError
-from reroom.invert.basis import CubemapBasis, InclinationBasis
-from reroom.invert.export import area_light_power, inclination_power, line_light_power
+from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
+from reroom.invert.export import (
+    area_light_power,
+    inclination_power,
+    line_light_power,
+    line_profile_grid,
+)
 from reroom.io.mesh import read_ply
 
 __all__ = [
@@ -305,29 +315,53 @@ def true_point_profile(
     return value.reshape(bins, -1, 3).mean(axis=1)
 
 
+def _cos2_quantiles(lo: float, hi: float, u: np.ndarray) -> np.ndarray:
+    """``phi`` in ``[lo, hi]`` at quantiles ``u`` of the density ``cos^2(phi)`` there.
+
+    ``cos^2`` is the measure of a line light's power (``i cos(phi)`` per metre times
+    ``d omega = cos(phi) dphi dtheta``), so the mean of ``i`` over such samples is the
+    bin value that carries the bin's power.
+    """
+
+    def prim(p: np.ndarray) -> np.ndarray:
+        return p / 2.0 + np.sin(2.0 * p) / 4.0
+
+    grid = np.linspace(lo, hi, 2049)
+    cdf = prim(grid) - prim(np.asarray(lo))
+    return np.interp(u * cdf[-1], cdf, grid)
+
+
 def true_line_profile(
     light: dict,
     scene_dir: str | Path,
     d_perp: np.ndarray,
     bins: int = 32,
-    samples: int = 4096,
-    angles: int = 8,
+    samples: int = 1024,
+    angles: int = 4,
     fixture_radius: float = FIXTURE_RADIUS,
     seed: int = 0,
+    phi_bins: int = 1,
+    fold: bool = True,
+    phi_angles: int = 16,
 ) -> np.ndarray:
-    """The true tube's effective intensity per metre in the solved angle basis.
+    """The true tube's effective intensity per metre in the solved ``(theta, phi)`` basis.
 
-    A bare tube of radius ``r`` and radiance ``L`` sends ``2 r L`` per metre (projected
-    width times radiance) in every direction perpendicular to it. Between baffles under
-    a housing, each bin gets ``2 r L`` times the fraction of the tube's projected area
-    (stratified points along its length and across its projected width, on the tube's
-    surface facing the direction) whose ray leaves the fixture (no hit within
-    ``fixture_radius`` of the fixture's parts; the tube's own part excluded). Directions
-    are perpendicular to the line (the basis's separable ``i(theta) cos(phi)`` has no
-    other dependence), on both sides of ``d_perp`` (the basis folds them into one bin,
-    so the bin holds their mean), ``angles`` jittered angles per bin. Light that leaves
-    the fixture only obliquely (out of the open ends of a baffle channel) has no place in
-    that separable basis and is not counted.
+    A bare tube of radius ``r`` and radiance ``L`` sends ``2 r L cos(phi)`` per metre
+    (projected area times radiance) along a direction at angle ``phi`` from the plane
+    perpendicular to it, i.e. ``i = 2 r L`` in the line model ``i(theta, phi) cos(phi)``
+    (:class:`reroom.invert.basis.LineBasis`). In a fixture, each direction gets ``2 r
+    L`` times the fraction of the tube's projected area (stratified points along its
+    length and across its projected width, on the tube's surface facing the direction)
+    whose ray leaves the fixture (no hit within ``fixture_radius`` of the fixture's
+    parts; the tube's own part excluded). A bin's value is the mean of that over its
+    directions weighted by ``cos^2(phi)`` -- the weight of the line's power, so that
+    :func:`reroom.invert.export.line_light_power` of the result is the power that
+    leaves the fixture -- on both sides of ``d_perp`` (the basis folds them) and, when
+    ``fold``, at ``+phi`` and ``-phi``: ``angles`` jittered ``theta`` strata per bin
+    times ``phi_angles / phi_bins`` (at least 1) jittered ``phi`` strata, equal in
+    ``cos^2`` measure. Light that leaves a baffle channel only obliquely, through its
+    open ends, is counted in the large ``|phi|`` bins (with ``phi_bins = 1``, the
+    separable model's single ``phi`` bin averages it with the rest).
 
     Parameters
     ----------
@@ -336,15 +370,21 @@ def true_line_profile(
     scene_dir : path
     d_perp : ndarray, shape (3,)
         The solved line's reference direction (made perpendicular to the true line).
-    bins, samples, angles, fixture_radius, seed
+    bins, phi_bins, fold
+        The solved basis's ``theta`` and ``phi`` bins.
+    samples, angles, phi_angles, fixture_radius, seed
         ``samples`` points on the tube per direction; ``fixture_radius = 0``: bare tube.
 
     Returns
     -------
-    ndarray, shape (bins, 3)
-        Intensity per metre of tube, per channel.
+    ndarray, shape (bins * phi_bins, 3)
+        Intensity per metre of tube, per channel, in :class:`~reroom.invert.basis.LineBasis`
+        order (``theta_bin * phi_bins + phi_bin``).
     """
+    from reroom.invert.basis import LineBasis
+
     scene_dir = Path(scene_dir)
+    basis = LineBasis(bins, phi_bins, fold)
     p0 = np.asarray(light["p0"], float)
     p1 = np.asarray(light["p1"], float)
     length = float(np.linalg.norm(p1 - p0))
@@ -360,32 +400,39 @@ def true_line_profile(
         lo, hi = np.minimum(p0, p1) - r, np.maximum(p0, p1) + r
         exclude = {light["part"]} if light.get("part") else set()
         caster = _fixture_caster(scene_dir, lo, hi, exclude, fixture_radius)
-    frac = np.ones(bins)
+    frac = np.ones(basis.size)
     if caster is not None:
         rng = np.random.default_rng(seed)
         n_s = max(1, int(np.sqrt(samples / 8)))  # across the width
         n_l = max(1, samples // n_s)  # along the length
         il, is_ = np.meshgrid(np.arange(n_l), np.arange(n_s), indexing="ij")
-        edges = InclinationBasis(bins).bin_edges()
+        t_edges, p_edges = basis.theta_edges(), basis.phi_edges()
+        n_p = max(1, phi_angles // phi_bins)
+        phi_signs = (1.0, -1.0) if fold else (1.0,)
         for k in range(bins):
-            strata = (np.arange(angles) + rng.random(angles)) / angles  # jittered
-            theta = edges[k] + (edges[k + 1] - edges[k]) * strata
-            hits, total = 0, 0
-            for t in theta:
-                for sign in (1.0, -1.0):
-                    w = np.cos(t) * up + sign * np.sin(t) * side
-                    q = np.cross(dh, w)
-                    along = length * (il.ravel() + rng.random(il.size)) / n_l
-                    across = r * (2 * (is_.ravel() + rng.random(is_.size)) / n_s - 1)
-                    pts = (
-                        p0
-                        + along[:, None] * dh
-                        + across[:, None] * q
-                        + np.sqrt(np.maximum(r * r - across**2, 0.0))[:, None] * w
-                    )
-                    hits += int(caster.occluded(pts, w, tmax=fixture_radius).sum())
-                    total += len(pts)
-            frac[k] = 1.0 - hits / total
+            for j in range(phi_bins):
+                strata = (np.arange(angles) + rng.random(angles)) / angles  # jittered
+                theta = t_edges[k] + (t_edges[k + 1] - t_edges[k]) * strata
+                u = (np.arange(n_p) + rng.random(n_p)) / n_p
+                phis = _cos2_quantiles(p_edges[j], p_edges[j + 1], u)
+                tt, pp, sg, ps = np.meshgrid(theta, phis, (1.0, -1.0), phi_signs, indexing="ij")
+                tt, pp, sg, ps = tt.ravel(), pp.ravel(), sg.ravel(), ps.ravel()
+                w_perp = np.cos(tt)[:, None] * up + (sg * np.sin(tt))[:, None] * side
+                w = np.cos(pp)[:, None] * w_perp + (ps * np.sin(pp))[:, None] * dh
+                q = np.cross(dh, w_perp)
+                m = len(w)
+                along = length * (il.ravel() + rng.random((m, il.size))) / n_l
+                across = r * (2 * (is_.ravel() + rng.random((m, is_.size))) / n_s - 1)
+                pts = (
+                    p0
+                    + along[..., None] * dh
+                    + across[..., None] * q[:, None, :]
+                    + np.sqrt(np.maximum(r * r - across**2, 0.0))[..., None] * w_perp[:, None, :]
+                ).reshape(-1, 3)
+                ray_dirs = np.repeat(w, il.size, axis=0)
+                hits = int(caster.occluded(pts, ray_dirs, tmax=fixture_radius).sum())
+                total = len(pts)
+                frac[basis.index(k, j)] = 1.0 - hits / total
     return 2 * r * frac[:, None] * rad[None, :]
 
 
@@ -455,7 +502,11 @@ def _seen_bins(scan: Path, out: Path, est: dict) -> dict[str, np.ndarray]:
     seen = {}
     for e in todo:
         g = e["geometry"]
-        basis = InclinationBasis(int(e["distribution"]["bins"]))
+        if e["type"] == "line":
+            grid, fold = line_profile_grid(e["distribution"])
+            basis = LineBasis(grid.shape[0], grid.shape[1], fold)
+        else:
+            basis = InclinationBasis(int(e["distribution"]["bins"]))
         if e["type"] == "point":
             f = point_light_transfer(
                 caster,
@@ -477,6 +528,7 @@ def _seen_bins(scan: Path, out: Path, est: dict) -> dict[str, np.ndarray]:
                 np.asarray(g["d_perp"], float),
                 basis,
                 segments=int(opts.get("line_segments", DEFAULT_LINE_SEGMENTS)),
+                clearance=float(opts.get("line_clearance", 0.03)),
             )
         seen[e["name"]] = f.sum(axis=0)
     return seen
@@ -512,19 +564,39 @@ def _compare_distribution(
             true_cells=truth.tolist(),
         )
         return dist, None
-    profile = np.asarray(e["distribution"]["profile"], float)
-    estimate = profile[:, None] * np.asarray(e["color"], float)[None, :]
-    bins = len(profile)
     g = e["geometry"]
+    color = np.asarray(e["color"], float)
     if kind == "point":
-        truth = true_point_profile(t, scene_dir, np.asarray(g["axis"], float), bins)
+        profile = np.asarray(e["distribution"]["profile"], float)
+        estimate = profile[:, None] * color[None, :]
+        truth = true_point_profile(t, scene_dir, np.asarray(g["axis"], float), len(profile))
         effective = inclination_power(truth)
+        dist.update(basis="inclination")
     else:
-        truth = true_line_profile(t, scene_dir, np.asarray(g["d_perp"], float), bins)
+        grid, fold = line_profile_grid(e["distribution"])
+        bins, phi_bins = grid.shape
+        estimate = grid.reshape(-1)[:, None] * color[None, :]
+        truth = true_line_profile(
+            t, scene_dir, np.asarray(g["d_perp"], float), bins, phi_bins=phi_bins, fold=fold
+        )
         length = float(np.linalg.norm(np.subtract(t["p1"], t["p0"])))
-        effective = line_light_power(truth, length)
+        effective = line_light_power(truth, length, phi_bins, fold)
+        # Both collapsed to theta alone (each theta bin's power-weighted mean over phi):
+        # comparable between runs with different phi bins, the separable one included.
+        pw = LineBasis(bins, phi_bins, fold).power_weights().reshape(bins, phi_bins)
+        pw = pw / pw.sum(axis=1, keepdims=True)
+
+        def collapse(x: np.ndarray) -> np.ndarray:
+            return np.einsum("tp,tpc->tc", pw, x.reshape(bins, phi_bins, 3))
+
+        dist.update(
+            basis="line",
+            bins=bins,
+            phi_bins=phi_bins,
+            phi_fold=fold,
+            relative_l2_theta=distribution_relative_l2(collapse(estimate), collapse(truth), k),
+        )
     dist.update(
-        basis="inclination",
         relative_l2=distribution_relative_l2(estimate, truth, k),
         true_profile=truth.tolist(),
         true_effective_power=effective.tolist(),
@@ -552,7 +624,8 @@ def evaluate_invert(scan_dir: str | Path, invert_dir: str | Path | None = None) 
         ``lights`` (per solved light: matched truth, power, relative power error;
         ``distribution_relative_l2`` and ``distribution_relative_l2_seen`` (point, line:
         all bins / bins the solve saw; window: the cells it shows), ``distribution``
-        (also ``relative_l2_well_seen`` and each bin's relative ``seen_weight``)
+        (also ``relative_l2_well_seen``, each bin's relative ``seen_weight`` and, for
+        lines, ``relative_l2_theta``; line bins flat in ``LineBasis`` order)
         with the truth in the solved basis and the seen bins; point lights also the
         power leaving the fixture, ``true_effective_power``, and its relative error),
         ``missed_lights`` (true lights with no solved light of their type nearby).

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from reroom.invert.basis import CubemapBasis
+from reroom.invert.basis import CubemapBasis, LineBasis
 from reroom.io.atomic import atomic_path, atomic_write_json
 from reroom.io.ies import IESProfile, write_ies
 from reroom.io.images import write_exr
@@ -25,6 +25,7 @@ __all__ = [
     "inclination_power",
     "latlong_from_cubemap",
     "line_light_power",
+    "line_profile_grid",
     "window_photo_maps",
     "window_power",
     "write_outputs",
@@ -53,16 +54,60 @@ def inclination_power(profile: np.ndarray) -> np.ndarray:
     return np.tensordot(solid, np.asarray(profile, float), axes=(0, 0))
 
 
-def line_light_power(profile: np.ndarray, length: float) -> np.ndarray:
-    """Radiant flux of a line light of eq. 5.11 (intensity per metre, symmetric in ``theta``).
+def line_light_power(
+    profile: np.ndarray, length: float, phi_bins: int = 1, fold: bool = True
+) -> np.ndarray:
+    """Radiant flux of a line light ``i(theta, phi) cos(phi)`` per metre (eq. 5.11 generalised).
 
-    A piece ``dx`` sends ``i(theta) cos(phi) dx`` per steradian toward a direction at
-    angle ``phi`` from the plane perpendicular to the line; integrating ``cos^2 phi`` over
-    ``phi`` gives ``pi / 2``, and ``theta`` covers ``[0, pi]`` on both sides of the line.
+    A piece ``dx`` sends ``i(theta, phi) cos(phi) dx`` per steradian toward a direction at
+    angle ``phi`` from the plane perpendicular to the line, so the flux is ``length *
+    integral i cos(phi) d omega`` with ``d omega = cos(phi) dphi dtheta`` and ``theta``
+    over ``[0, pi]`` on both sides of the line
+    (:meth:`reroom.invert.basis.LineBasis.power_weights`). With ``phi_bins = 1``
+    (separable) integrating ``cos^2 phi`` gives ``pi / 2`` and the flux is ``length * pi *
+    dtheta * sum_k i_k``.
+
+    Parameters
+    ----------
+    profile : ndarray, shape (size,) or (size, 3)
+        Per-bin intensity per metre in :class:`~reroom.invert.basis.LineBasis` order
+        (``theta_bin * phi_bins + phi_bin``; a ``(theta_bins, phi_bins)`` grid flattened).
+    length : float
+        Metres.
+    phi_bins, fold : int, bool
+        The basis's ``phi`` bins.
     """
-    bins = len(profile)
-    dtheta = np.pi / bins
-    return length * np.pi * dtheta * np.sum(np.asarray(profile, float), axis=0)
+    prof = np.asarray(profile, float)
+    if phi_bins < 1 or prof.shape[0] % phi_bins:
+        raise ValueError(f"profile of {prof.shape[0]} bins is no multiple of {phi_bins} phi bins")
+    if phi_bins == 1:
+        bins = len(prof)
+        dtheta = np.pi / bins
+        return length * np.pi * dtheta * np.sum(prof, axis=0)
+    weights = LineBasis(prof.shape[0] // phi_bins, phi_bins, fold).power_weights()
+    return length * np.tensordot(weights, prof, axes=(0, 0))
+
+
+def line_profile_grid(distribution: dict[str, Any]) -> tuple[np.ndarray, bool]:
+    """A line light's ``(theta_bins, phi_bins)`` profile grid and ``phi`` fold from ``scene.json``.
+
+    Reads both layouts of ``distribution``: ``basis: "line"`` with ``profile`` a
+    ``(bins, phi_bins)`` nested list, ``phi_bins`` and ``phi_fold``; and the separable
+    ``basis: "inclination"`` with a 1D ``profile`` of files written before the ``phi``
+    bins (read as ``phi_bins = 1``).
+    """
+    prof = np.asarray(distribution["profile"], float)
+    phi_bins = int(distribution.get("phi_bins", 1))
+    fold = bool(distribution.get("phi_fold", True))
+    if prof.ndim == 1:
+        if phi_bins != 1 and prof.size % phi_bins == 0:
+            return prof.reshape(-1, phi_bins), fold
+        return prof[:, None], fold
+    if prof.ndim != 2 or prof.shape[1] != phi_bins:
+        raise ValueError(
+            f"line profile has shape {prof.shape}, expected (bins, {phi_bins}) for phi_bins"
+        )
+    return prof, fold
 
 
 def area_light_power(radiance: np.ndarray, area: float) -> np.ndarray:
@@ -130,20 +175,49 @@ def _ies_profile(profile: np.ndarray, name: str, kind: str) -> IESProfile:
     )
 
 
-def _goniometric_plot(path: Path, profile: np.ndarray, color: np.ndarray, title: str) -> None:
+def _goniometric_plot(
+    path: Path,
+    profile: np.ndarray,
+    color: np.ndarray,
+    title: str,
+    phi_edges: np.ndarray | None = None,
+) -> None:
+    """Polar diagram of a profile against ``theta`` (thesis Fig. 5.4/5.6).
+
+    ``profile`` is ``(bins,)``, or ``(bins, phi_bins)`` for a line light with ``phi``
+    bins: one curve per ``phi`` bin (``phi_edges`` in radians label them), darker
+    towards the line's axis.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    bins = len(profile)
+    prof = np.asarray(profile, float)
+    grid = prof[:, None] if prof.ndim == 1 else prof
+    bins = len(grid)
     theta = (np.arange(bins) + 0.5) / bins * np.pi
     fig = plt.figure(figsize=(4, 4))
     ax = fig.add_subplot(projection="polar")
     ax.set_theta_zero_location("N")
     c = np.clip(color / max(color.max(), 1e-12), 0, 1)
-    for sign in (1, -1):
-        ax.plot(sign * np.r_[theta, theta[-1]], np.r_[profile, profile[-1]], color=c * 0.8)
+    n_phi = grid.shape[1]
+    for j in range(n_phi):
+        shade = 0.8 * (1.0 - 0.6 * j / max(n_phi - 1, 1))
+        label = None
+        if n_phi > 1 and phi_edges is not None:
+            lo, hi = np.degrees(phi_edges[j]), np.degrees(phi_edges[j + 1])
+            label = f"phi {lo:.0f}-{hi:.0f} deg"
+        col = grid[:, j]
+        for sign in (1, -1):
+            ax.plot(
+                sign * np.r_[theta, theta[-1]],
+                np.r_[col, col[-1]],
+                color=c * shade,
+                label=label if sign == 1 else None,
+            )
+    if n_phi > 1 and phi_edges is not None:
+        ax.legend(fontsize=6, loc="lower left", bbox_to_anchor=(-0.15, -0.15))
     ax.set_title(title, fontsize=9)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, bbox_inches="tight", format="png")
@@ -176,7 +250,40 @@ def _window_area(g: dict) -> float:
     return float(4 * np.linalg.norm(np.asarray(g["half_u"], float)) * np.linalg.norm(g["half_v"]))
 
 
-def fill_poorly_seen(profile: np.ndarray, support: np.ndarray, min_fraction: float) -> np.ndarray:
+def _harmonic_fill(values: np.ndarray, fixed: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """``values`` with the free (not ``fixed``) nodes replaced by their harmonic interpolation.
+
+    The graph Laplacian of ``pairs`` is solved for the free nodes with the fixed ones as
+    boundary values (each free node the mean of its neighbours): on a chain this is the
+    linear interpolation between fixed nodes and the nearest fixed value beyond the last.
+    Free nodes whose connected component has no fixed node keep their values.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.linalg import spsolve
+
+    n = len(values)
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    w = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    w = w + w.T
+    lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
+    _, comp = connected_components(w, directed=False)
+    has_fixed = np.bincount(comp, weights=fixed.astype(float), minlength=comp.max() + 1) > 0
+    solve = ~fixed & has_fixed[comp]
+    out = values.copy()
+    if solve.any():
+        a = lap[solve][:, solve].tocsc()
+        b = -(lap[solve][:, fixed] @ values[fixed])
+        out[solve] = np.atleast_1d(spsolve(a, b))
+    return out
+
+
+def fill_poorly_seen(
+    profile: np.ndarray,
+    support: np.ndarray,
+    min_fraction: float,
+    adjacency: np.ndarray | None = None,
+) -> np.ndarray:
     """A profile whose poorly seen bins are interpolated from the well-seen ones.
 
     Parameters
@@ -192,6 +299,12 @@ def fill_poorly_seen(profile: np.ndarray, support: np.ndarray, min_fraction: flo
         receiver sees at all (support 0: hidden by the light's own fitting, such as a
         shade's sides or above a recessed downlight) are 0 -- what the room receives
         from those directions, which is what the distribution describes.
+    adjacency:
+        ``(M, 2)`` neighbouring bins of a basis that is not a 1D chain (a line light's
+        ``(theta, phi)`` bins, :meth:`reroom.invert.basis.LineBasis.adjacency`): the
+        poorly seen bins then get the harmonic interpolation of the well-seen ones over
+        that graph (each the mean of its neighbours), which on a chain is the linear
+        interpolation above. None: the bins are a chain in index order.
 
     Returns
     -------
@@ -205,9 +318,106 @@ def fill_poorly_seen(profile: np.ndarray, support: np.ndarray, min_fraction: flo
     well = support >= min_fraction * top
     if top <= 0 or not well.any():
         return profile.copy()
-    idx = np.arange(len(profile))
-    filled = np.where(well, profile, np.interp(idx, idx[well], profile[well]))
+    if adjacency is None:
+        idx = np.arange(len(profile))
+        filled = np.where(well, profile, np.interp(idx, idx[well], profile[well]))
+    else:
+        filled = _harmonic_fill(profile, well, adjacency)
     return np.where(support > 1e-12 * top, filled, 0.0)
+
+
+def _line_basis_of(info: dict[str, Any], size: int) -> LineBasis:
+    b = info.get("basis") or {}
+    phi_bins = int(b.get("phi_bins", 1))
+    return LineBasis(int(b.get("theta_bins", size // phi_bins)), phi_bins, b.get("phi_fold", True))
+
+
+def _line_entry(
+    block, info: dict[str, Any], result, out: Path | None, min_bin_support: float
+) -> dict[str, Any]:
+    """``color``, ``distribution``, ``power`` (and ``ies``) of a line light's entry."""
+    g = info["geometry"]
+    solved = np.asarray(result.solve.profiles[block.name], np.float64)
+    basis = _line_basis_of(info, len(solved))
+    support = info.get("support")
+    pairs = None if basis.phi_bins == 1 else basis.adjacency()[0]
+    profile = (
+        solved
+        if support is None
+        else fill_poorly_seen(solved, np.asarray(support), min_bin_support, pairs)
+    )
+    color = result.solve.colors[block.name]
+    shape = (basis.theta_bins, basis.phi_bins)
+    dist: dict[str, Any] = {
+        "basis": "line",
+        "bins": basis.theta_bins,
+        "phi_bins": basis.phi_bins,
+        "phi_fold": basis.fold,
+        "phi_edges_deg": np.degrees(basis.phi_edges()).tolist(),
+        "profile": profile.reshape(shape).tolist(),
+        "profile_solved": solved.reshape(shape).tolist(),
+        "theta": "around the line from d_perp",
+        "phi": "out of the plane perpendicular to the line, + towards p1"
+        + (" (|phi|: both signs share a bin)" if basis.fold else ""),
+    }
+    if support is not None:
+        sup = np.asarray(support, float)
+        dist["support"] = sup.reshape(shape).tolist()
+        dist["well_seen"] = (sup >= min_bin_support * sup.max()).reshape(shape).tolist()
+    e: dict[str, Any] = {"color": color.tolist(), "distribution": dist}
+    e["power"] = (
+        line_light_power(profile, _length(g), basis.phi_bins, basis.fold) * color
+    ).tolist()
+    if out is not None:
+        write_ies(out / f"{block.name}.ies", _line_ies(profile, basis, g, block.name))
+        e["ies"] = f"{block.name}.ies"
+    return e
+
+
+def _line_ies(profile: np.ndarray, basis: LineBasis, g: dict[str, Any], name: str) -> IESProfile:
+    """LM-63 table of a line light's intensity per metre of line.
+
+    Separable profiles (``phi_bins = 1``): the axially symmetric table of ``i(theta)`` in
+    the plane perpendicular to the line, vertical angle 0 the nadir (``-d_perp``), as
+    before the ``phi`` bins. Otherwise the full type C table of ``i(theta, phi)
+    cos(phi)`` per metre: vertical angle from the nadir ``-d_perp``, horizontal angle 0
+    along the line (``p0 -> p1``), 90 towards ``d_perp x tangent``; 2.5 x 5 degree nodes,
+    constant per bin.
+    """
+    if basis.phi_bins == 1:
+        return _ies_profile(profile, name, "line")
+    tangent = np.asarray(g["p1"], float) - np.asarray(g["p0"], float)
+    tangent /= np.linalg.norm(tangent)
+    up = np.asarray(g.get("d_perp", [0.0, 0.0, 1.0]), float)
+    up = up - (up @ tangent) * tangent
+    up /= np.linalg.norm(up)
+    y = np.cross(up, tangent)
+    v = np.linspace(0.0, 180.0, 73)
+    hz = np.linspace(0.0, 360.0, 73)
+    vv, hh = np.meshgrid(np.radians(v), np.radians(hz), indexing="xy")  # (H, V)
+    d = (
+        (np.sin(vv) * np.cos(hh))[..., None] * tangent
+        + (np.sin(vv) * np.sin(hh))[..., None] * y
+        - np.cos(vv)[..., None] * up
+    ).reshape(-1, 3)
+    along = np.clip(d @ tangent, -1.0, 1.0)
+    perp = d - along[:, None] * tangent
+    cos_phi = np.linalg.norm(perp, axis=1)
+    cos_t = np.divide(perp @ up, cos_phi, out=np.ones_like(cos_phi), where=cos_phi > 1e-12)
+    k = basis.bin_of(cos_t, np.arcsin(along))
+    table = (np.asarray(profile, float)[k] * cos_phi).reshape(hh.shape)
+    return IESProfile(
+        vertical_angles=v,
+        horizontal_angles=hz,
+        candela=table,
+        keywords={
+            "TEST": "reroom invert",
+            "MANUFAC": "reroom",
+            "LUMINAIRE": f"line light {name} (relative radiometric units per metre of line, "
+            "not candela; horizontal angle 0 along the line p0 -> p1)",
+        },
+        symmetry="full",
+    )
 
 
 def light_entries(
@@ -254,7 +464,7 @@ def light_entries(
                 e["environment_source"] = "photos+cells" if photo is not None else "cells"
                 if photo is not None:
                     e["environment_photos"] = photo[1]
-        else:
+        elif block.kind == "point":
             solved = np.asarray(result.solve.profiles[block.name], np.float64)
             support = info.get("support")
             profile = (
@@ -269,22 +479,19 @@ def light_entries(
                 "bins": len(profile),
                 "profile": profile.tolist(),
                 "profile_solved": solved.tolist(),
-                "theta": "from the axis"
-                if block.kind == "point"
-                else "around the line from d_perp",
+                "theta": "from the axis",
             }
             if support is not None:
                 e["distribution"]["support"] = [float(x) for x in support]
                 e["distribution"]["well_seen"] = [
                     bool(x >= min_bin_support * max(support)) for x in support
                 ]
-            if block.kind == "point":
-                e["power"] = (inclination_power(profile) * color).tolist()
-            else:
-                e["power"] = (line_light_power(profile, _length(g)) * color).tolist()
+            e["power"] = (inclination_power(profile) * color).tolist()
             if out is not None:
                 write_ies(out / f"{block.name}.ies", _ies_profile(profile, block.name, block.kind))
                 e["ies"] = f"{block.name}.ies"
+        else:  # line
+            e.update(_line_entry(block, info, result, out, min_bin_support))
         e["share_of_irradiance"] = share
         e["explains_nothing"] = bool(share < 1e-3)
         entries.append(e)
@@ -377,11 +584,20 @@ def write_outputs(
         for e in lights:
             if e["type"] in ("point", "line"):
                 p = f"gonio_{e['name']}.png"
+                dist = e["distribution"]
+                edges = None
+                if e["type"] == "line":
+                    prof, fold = line_profile_grid(dist)
+                    edges = LineBasis(prof.shape[0], prof.shape[1], fold).phi_edges()
+                    prof = prof[:, 0] if prof.shape[1] == 1 else prof
+                else:
+                    prof = np.asarray(dist["profile"])
                 _goniometric_plot(
                     out / p,
-                    np.asarray(e["distribution"]["profile"]),
+                    prof,
                     np.asarray(e["color"]),
                     f"{e['type']} light {e['name']}: intensity vs angle",
+                    edges,
                 )
                 pics.append(p)
             elif e["type"] == "window":

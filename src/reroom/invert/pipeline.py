@@ -25,7 +25,7 @@ import scipy.sparse as sp
 from reroom.errors import ScanError
 from reroom.hdr.observe import vertex_normals
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
-from reroom.invert.basis import CubemapBasis, InclinationBasis
+from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -57,7 +57,36 @@ class InvertOptions:
     cubemap_n : int
         Cube-map cells per face edge of window light (thesis: 4, 96 cells).
     bins : int
-        Inclination bins of point and line lights (thesis: 32).
+        Inclination bins of point lights, and ``theta`` bins (around the line) of line
+        lights (thesis: 32).
+    line_phi_bins : int
+        ``phi`` bins of line lights (angle out of the plane perpendicular to the line,
+        :class:`~reroom.invert.basis.LineBasis`): the profile is ``i(theta, phi)
+        cos(phi)``. 1 is the thesis's separable ``i(theta) cos(phi)``, which cannot tell
+        light leaving a tube's channel through its open ends (large ``|phi|``) from light
+        leaving sideways. 3 (0-30, 30-60, 60-90 degrees) measured best on `furnished`
+        against 1, 2, 4, 5, 6 and 8 (docs/invert.md).
+    line_phi_fold : bool
+        Whether ``phi`` and ``-phi`` (towards either end of the line) share a bin. Folded
+        by default: a tube's two ends are alike, and keeping the sign (twice the unknowns,
+        half the data each) measured no better on `furnished`.
+    line_phi_smooth : float
+        Weight of the smoothness between ``phi`` neighbours of a line light, relative to
+        that between ``theta`` neighbours (whose weight is ``solve.smooth_lambda``). The
+        data hardly separate the ``phi`` bins of one ``theta`` (only the receivers' places
+        along the line do), so they are tied far more strongly: 1e4 (``1e4 x 1e-5 = 0.1`` of
+        a bin's data curvature); 1 to 100 left the ``phi`` split noisy (distribution error
+        65-73 % on `furnished`), 1e4 gave 28 %.
+    line_clearance : float
+        Metres around a line light inside which nothing shadows it
+        (:func:`reroom.invert.direct.line_light_transfer`'s ``clearance``), as
+        ``point_clearance``: a tube's housing and baffles are then part of its solved
+        distribution (the tube as seen from outside its fixture) instead of geometry in
+        the shadow rays. With 3 cm (the transfer's own default, and this option's value
+        before the ``phi`` bins) the baffles shadow the line in the transfer, so the solve
+        recovers the *bare* tube's intensity in every direction some receiver sees past
+        them, and its power counted the light the baffles stop (+150 to +200 % against
+        what leaves the fixture on `furnished`).
     rays_per_receiver : int
         Hemisphere rays per receiving vertex.
     receiver_voxel : float
@@ -114,6 +143,10 @@ class InvertOptions:
 
     cubemap_n: int = 4
     bins: int = 32
+    line_phi_bins: int = 3
+    line_phi_fold: bool = True
+    line_phi_smooth: float = 1e4
+    line_clearance: float = 0.3
     rays_per_receiver: int = 512
     receiver_voxel: float = 0.1
     line_segments: int = 16
@@ -366,6 +399,8 @@ def run_invert(
     info: list[dict] = []
     incl = InclinationBasis(options.bins)
     chain = np.stack([np.arange(options.bins - 1), np.arange(1, options.bins)], axis=1)
+    line_basis = LineBasis(options.bins, options.line_phi_bins, options.line_phi_fold)
+    line_adj, line_adj_w = line_basis.adjacency(options.line_phi_smooth)
     n_recv = normals[receivers] / np.linalg.norm(normals[receivers], axis=1, keepdims=True)
     p_recv = inset_points(mesh, receivers, n_recv, options.receiver_inset)
     for k, light in enumerate(areas):
@@ -399,6 +434,8 @@ def run_invert(
                 incl,
                 clearance=options.point_clearance,
             )
+            blocks.append(LightBlock(light.name, "point", incl.size, True, chain))
+            info.append({"name": light.name, "type": "point", "geometry": g})
         elif light.type == "line":
             f = line_light_transfer(
                 caster,
@@ -407,14 +444,28 @@ def run_invert(
                 np.asarray(g["p0"], float),
                 np.asarray(g["p1"], float),
                 np.asarray(g["d_perp"], float),
-                incl,
+                line_basis,
                 segments=options.line_segments,
+                clearance=options.line_clearance,
+            )
+            blocks.append(
+                LightBlock(light.name, "line", line_basis.size, True, line_adj, line_adj_w)
+            )
+            info.append(
+                {
+                    "name": light.name,
+                    "type": "line",
+                    "geometry": g,
+                    "basis": {
+                        "theta_bins": line_basis.theta_bins,
+                        "phi_bins": line_basis.phi_bins,
+                        "phi_fold": line_basis.fold,
+                    },
+                }
             )
         else:
             continue
-        blocks.append(LightBlock(light.name, light.type, options.bins, True, chain))
         columns.append(f)
-        info.append({"name": light.name, "type": light.type, "geometry": g})
     transfer = (
         sp.csr_matrix(np.concatenate(columns, axis=1))
         if columns
