@@ -16,6 +16,10 @@ reads ``ground_truth/``, which the estimate never does.
     the same eq. 5.7 problem re-solved with the receivers' ``Lbar`` or their ``E_ind``
     taken from the truth, or with the window's cube cells fixed to the truth's:
     cluster-albedo and light-power errors per row.
+``--light-swaps``
+    ``reroom invert`` with the detected lights, then with one detected light at a time
+    replaced by its true counterpart (same type, nearest position; its name kept):
+    which light's detection or localization costs the albedos and the other lights.
 ``--indirect``
     ``E_ind`` from the true radiance (512 hemisphere rays) against the path tracer's
     indirect irradiance ``pi (L - L_direct) / rho``, ``L_direct`` rendered at depth 2.
@@ -136,6 +140,9 @@ def _row(label: str, report: dict) -> str:
     for light in report["lights"]:
         err = light.get("power_relative_error")
         text = f"{light['name']} {_pct(err)}" if err is not None else light["name"]
+        eff = light.get("effective_power_relative_error")
+        if eff is not None:
+            text += f" [leaving the fixture: {_pct(eff)}]"
         l2 = light.get("distribution_relative_l2")
         powers.append(text + (f" (L2 {100 * l2:.0f} %)" if l2 is not None else ""))
     return f"| {label} | " + " | ".join(cells) + " | " + "; ".join(powers) + " |"
@@ -336,6 +343,58 @@ def fireflies(scan: Path, frame: int, work: Path, spp: int) -> None:
         print(f"| {label} | {np.mean(img > 3 * np.maximum(med, 1e-6)):.2%} | {img.mean():.4f} |")
 
 
+def _light_position(light) -> np.ndarray:
+    g = light.geometry
+    if light.type == "area":
+        return np.asarray(g["centroid"], float)
+    if light.type == "window":
+        return np.asarray(g["centre"], float)
+    if light.type == "line":
+        return (np.asarray(g["p0"], float) + np.asarray(g["p1"], float)) / 2
+    return np.asarray(g["position"], float)
+
+
+def light_swaps(scan: Path, work: Path) -> None:
+    """The detected lights, then each one replaced by its true counterpart in turn."""
+    import dataclasses as dc
+
+    from reroom.lights import LightSet, load_lights, write_lights
+
+    detected = load_lights(scan / "lights" / "lights.json")
+    truth = lights_from_truth(scan)
+    print(
+        "| lights | wall | floor | ceiling | lights (power error, distribution L2) |\n"
+        "|---|---|---|---|---|"
+    )
+    out = work / "light_swap_detected"
+    _invert(scan, out)
+    print(_row("detected", evaluate_invert(scan, out)), flush=True)
+    for k, light in enumerate(detected.lights):
+        same = [t for t in truth.lights if t.type == light.type]
+        if not same:
+            continue
+        dist = [np.linalg.norm(_light_position(t) - _light_position(light)) for t in same]
+        true_light = same[int(np.argmin(dist))]
+        geom = dict(true_light.geometry)
+        ids = np.asarray(detected.vertex_light_id).copy()
+        if light.type == "area":
+            ti = truth.lights.index(true_light)
+            ids[ids == k] = -1
+            ids[np.asarray(truth.vertex_light_id) == ti] = k
+            geom["light_index"] = k
+        elif light.type == "window" and "light_index" in light.geometry:
+            geom["light_index"] = light.geometry["light_index"]
+        lights = list(detected.lights)
+        lights[k] = dc.replace(light, geometry=geom, source="user", reason="true (evaluation)")
+        swapped = LightSet(lights, [], ids.astype(np.int32), {}, ["EVALUATION ONLY"], {})
+        name = f"light_swap_{light.name}"
+        write_lights(swapped, work / f"{name}_lights")
+        src = linked_scan(scan, work / f"{name}_scan", {"lights": work / f"{name}_lights"})
+        _invert(src, work / name)
+        label = f"{light.name} true ({float(np.min(dist)):.2f} m off)"
+        print(_row(label, evaluate_invert(src, work / name)), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -349,6 +408,7 @@ def main() -> None:
     ap.add_argument(
         "--invert", default="{}", help="InvertOptions as JSON, e.g. '{\"near_distance\": 0}'"
     )
+    ap.add_argument("--light-swaps", action="store_true")
     ap.add_argument("--indirect", action="store_true")
     ap.add_argument("--bands", action="store_true")
     ap.add_argument("--bin-by", type=Path, help="independent truth PLY for --bands")
@@ -367,6 +427,8 @@ def main() -> None:
         reprobe(args.scan, args.reprobe, args.eval_dir)
     if args.swaps:
         swaps(args.scan, args.work, SolveOptions(**json.loads(args.solve)), args.rows)
+    if args.light_swaps:
+        light_swaps(args.scan, args.work)
     if args.indirect:
         indirect(args.scan, args.work)
     if args.bands:

@@ -442,6 +442,12 @@ def light_entries(
         values = result.solve.intensities[block.name]
         share = result.solve.light_share.get(block.name, 0.0)
         e: dict[str, Any] = {"name": block.name, "type": block.kind, "geometry": g}
+        if "refinement" in info:  # point lights: reroom.invert.refine_points
+            e["position_refinement"] = {
+                **info["refinement"],
+                "refined_from": info.get("refined_from"),
+                "kept": "refined_from" in info,
+            }
         if block.kind == "area":
             e["radiance"] = values[0].tolist()
             e["power"] = area_light_power(values[0], float(g.get("area", 0.0))).tolist()
