@@ -166,8 +166,18 @@ def speed_table(scan: str, out: str | None = None) -> None:
         "line lights": recv * opts.line_segments * kinds.count("line"),
         "near filter": clustered * 64,
     }
+    # Point-light refinement: one shadow ray per fitted receiver per trial position, and
+    # the moved lights' transfer recomputed on every receiver.
+    refined = [e.get("refinement") for e in res.light_info if e.get("refinement")]
+    if refined:
+        fitted = min(clustered, opts.refine_max_receivers)
+        moved = sum(1 for e in res.light_info if "refined_from" in e)
+        rays["point-light refinement"] = (
+            sum(r["evaluations"] for r in refined) * fitted + moved * recv
+        )
     solve_only = tm["solve"] - tm.get("near_filter", 0.0)
-    transfer_solve = tm["hemisphere_transfer"] + tm["direct_transfer"] + tm["solve"]
+    refine = tm.get("refine_points", 0.0)
+    transfer_solve = tm["hemisphere_transfer"] + tm["direct_transfer"] + tm["solve"] + refine
     print(f"\n## reroom invert speed: {scan}\n")
     print(
         f"{n_v} vertices, {recv} receivers ({hemi} hemisphere receivers), "
@@ -179,6 +189,8 @@ def speed_table(scan: str, out: str | None = None) -> None:
         if key in tm:
             print(f"| {key} | {tm[key]:.1f} |")
     print(f"| solve (without the near filter) | {solve_only:.1f} |")
+    if "refine_points" in tm:
+        print(f"| refine_points (search, transfer, second solve) | {refine:.1f} |")
     print(f"| outputs | {wall - tm['total']:.1f} |")
     print(f"| **whole run_invert** | **{wall:.1f}** (CPU {cpu:.1f} s) |")
     print("\n| rays | count |\n|---|---|")
