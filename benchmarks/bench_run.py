@@ -8,6 +8,11 @@ SCAN`` instead, against the issue's 5-minute target for a 300-frame 640x360 scan
 
     python benchmarks/bench_run.py [--out /tmp/reroom_bench_run]
     python benchmarks/bench_run.py --scan SCAN [--out DIR]
+    python benchmarks/bench_run.py --evaluate-only --out DIR [--scan SCAN]  # an earlier run
+
+When the scan has a ground truth, the inverse rendering's errors against it follow
+(``reroom.invert.evaluate.evaluate_invert``: cluster albedos, each light's power, power
+leaving its fitting and distribution error).
 """
 
 from __future__ import annotations
@@ -40,7 +45,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--out", type=Path, default=Path("/tmp/reroom_bench_run"))
     ap.add_argument("--scan", type=Path, default=None, help="time `reroom run SCAN` instead")
+    ap.add_argument(
+        "--evaluate-only", action="store_true", help="only evaluate the run already in --out"
+    )
     args = ap.parse_args()
+    if args.evaluate_only:
+        evaluate(args.scan or args.out, args.out / "invert")
+        return
     if args.out.exists():
         shutil.rmtree(args.out)
     reroom = str(Path(sys.executable).with_name("reroom"))
@@ -65,6 +76,35 @@ def main() -> None:
         print(f"| {st.get('name')} | {st.get('status')} | {st.get('seconds', 0):.1f} |")
     wall2, cpu2 = _timed([reroom, "run", str(scan), "--out", str(args.out)])
     print(f"resumed `reroom run` (nothing changed): {wall2:.1f} s wall, {cpu2:.1f} s CPU")
+    evaluate(scan, args.out / "invert")
+
+
+def _pct(values) -> str:
+    return "/".join(f"{100 * v:+.1f}" for v in values) + " %"
+
+
+def evaluate(scan: Path, invert_dir: Path) -> None:
+    """Print the inverse rendering's errors against the scan's ground truth, if it has one."""
+    if not (scan / "ground_truth").is_dir() or not invert_dir.is_dir():
+        print(f"{scan}: no ground truth, or no {invert_dir}: nothing to evaluate")
+        return
+    from reroom.invert.evaluate import evaluate_invert
+
+    rep = evaluate_invert(scan, invert_dir)
+    print("\n| cluster | albedo error r/g/b |\n|---|---|")
+    for name, c in rep["clusters"].items():
+        print(f"| {name} | {_pct(c['relative_error'])} |")
+    print("\n| light | truth | off by | power error | leaving the fitting | distribution L2 |")
+    print("|---|---|---|---|---|---|")
+    for light in rep["lights"]:
+        pe = light.get("power_relative_error")
+        ee = light.get("effective_power_relative_error")
+        l2 = light.get("distribution_relative_l2")
+        print(
+            f"| {light['name']} | {light.get('truth')} | {light.get('distance_m', 0):.3f} m | "
+            f"{_pct(pe) if pe else '-'} | {_pct(ee) if ee else '-'} | "
+            f"{f'{100 * l2:.1f} %' if l2 is not None else '-'} |"
+        )
 
 
 if __name__ == "__main__":

@@ -468,6 +468,19 @@ def distribution_relative_l2(
     return float(np.linalg.norm(ye - yt) / den) if den > 0 else None
 
 
+def _hdr_mesh_path(scan: Path, out: Path) -> Path:
+    """The HDR mesh the inverse rendering in ``out`` solved with.
+
+    ``SCAN/hdr/hdr_mesh.ply``, or where ``out/report.json`` says (``reroom run --out DIR``
+    keeps its stages' outputs apart from the scan).
+    """
+    path = scan / "hdr" / "hdr_mesh.ply"
+    if not path.is_file() and (out / "report.json").is_file():
+        inputs = json.loads((out / "report.json").read_text()).get("inputs", {})
+        path = Path(inputs.get("hdr_mesh", path))
+    return path
+
+
 def _seen_bins(scan: Path, out: Path, est: dict) -> dict[str, np.ndarray]:
     """Per solved point / line light, each bin's transfer summed over the clustered vertices.
 
@@ -488,7 +501,7 @@ def _seen_bins(scan: Path, out: Path, est: dict) -> dict[str, np.ndarray]:
     todo = [e for e in est["lights"] if e["type"] in ("point", "line")]
     if not todo:
         return {}
-    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
+    mesh = read_ply(_hdr_mesh_path(scan, out))
     in_cluster = np.asarray(read_ply(out / "albedo.ply").vertex_attributes["in_cluster"]) > 0
     report = (
         json.loads((out / "report.json").read_text()) if (out / "report.json").is_file() else {}
@@ -673,9 +686,16 @@ def evaluate_invert(scan_dir: str | Path, invert_dir: str | Path | None = None) 
     report["per_vertex"] = {"all": _stats(solved), "clustered": _stats(solved & in_cluster)}
 
     # the HDR radiance's own per-channel scale
-    hdr_path = scan / "hdr" / "hdr_mesh.ply"
+    hdr_path = _hdr_mesh_path(scan, out)
     k = np.ones(3)
-    if hdr_path.is_file() and not (out / "true_radiance.flag").is_file():
+    if (out / "true_radiance.flag").is_file():
+        pass  # solved with the truth's radiance: its scale is 1
+    elif not hdr_path.is_file():
+        report.setdefault("notes", []).append(
+            f"{hdr_path} not found: light powers are in the HDR mesh's units (k = 1), "
+            "not comparable with the truth's"
+        )
+    else:
         lbar = np.asarray(read_ply(hdr_path).vertex_attributes["radiance"], float)
         ok = in_cluster & (true_rad > 1e-4).all(axis=1) & (lbar > 0).all(axis=1)
         if ok.any():

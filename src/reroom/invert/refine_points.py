@@ -19,7 +19,7 @@ weighted least-squares fit (the solve's final weights times ``(rho / pi)^2``, so
 the solve's own radiance residuals; a weak smoothness between neighbouring bins), and
 Nelder-Mead searches ``x`` within ``max_shift`` of the start. The pipeline then
 recomputes the moved lights' transfer, solves again and keeps the new positions only if
-the objective of eq. 5.7 went down.
+the objective of eq. 5.7 went down by ``InvertOptions.refine_min_gain`` (2 %).
 """
 
 from __future__ import annotations
