@@ -343,17 +343,6 @@ def fireflies(scan: Path, frame: int, work: Path, spp: int) -> None:
         print(f"| {label} | {np.mean(img > 3 * np.maximum(med, 1e-6)):.2%} | {img.mean():.4f} |")
 
 
-def _light_position(light) -> np.ndarray:
-    g = light.geometry
-    if light.type == "area":
-        return np.asarray(g["centroid"], float)
-    if light.type == "window":
-        return np.asarray(g["centre"], float)
-    if light.type == "line":
-        return (np.asarray(g["p0"], float) + np.asarray(g["p1"], float)) / 2
-    return np.asarray(g["position"], float)
-
-
 def light_swaps(scan: Path, work: Path) -> None:
     """The detected lights, then each one replaced by its true counterpart in turn."""
     import dataclasses as dc
@@ -373,7 +362,7 @@ def light_swaps(scan: Path, work: Path) -> None:
         same = [t for t in truth.lights if t.type == light.type]
         if not same:
             continue
-        dist = [np.linalg.norm(_light_position(t) - _light_position(light)) for t in same]
+        dist = [np.linalg.norm(t.anchor() - light.anchor()) for t in same]
         true_light = same[int(np.argmin(dist))]
         geom = dict(true_light.geometry)
         ids = np.asarray(detected.vertex_light_id).copy()

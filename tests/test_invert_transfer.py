@@ -241,12 +241,12 @@ def eq_5_11_quadrature(p, n, p0, p1, samples=20_000):
     return out
 
 
-def test_line_light_matches_quadrature_and_bins():
+def _line_scene():
+    """A floor plane, a 1.2 m line 2.2 m above it, and receivers: on the floor (under and
+    beyond the line's ends) and tilted ones in the air (their horizon cuts the line)."""
     plane = grid_plane(3.0, 0.5)
-    caster = RayCaster(plane)
     rng = np.random.default_rng(2)
     p0, p1 = np.array([-0.6, 0.1, 2.2]), np.array([0.6, 0.1, 2.2])
-    # Receivers on the floor and tilted ones (their horizon cuts the line: clipping).
     p = np.concatenate([plane.vertices[::3], rng.uniform([-2, -2, 0.5], [2, 2, 2.0], (20, 3))])
     n = np.concatenate(
         [
@@ -254,6 +254,11 @@ def test_line_light_matches_quadrature_and_bins():
             unit_rows(rng.normal(size=(20, 3))),
         ]
     )
+    return RayCaster(plane), p0, p1, p, n
+
+
+def test_line_light_matches_quadrature_and_bins():
+    caster, p0, p1, p, n = _line_scene()
     basis = InclinationBasis(32)
     ref = eq_5_11_quadrature(p, n, p0, p1)
     exact = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], basis, segments=4)
@@ -321,18 +326,7 @@ def eq_5_11_phi_quadrature(p, n, p0, p1, basis, samples=20_000):
 
 @pytest.mark.parametrize("fold", [True, False])
 def test_line_light_phi_bins_match_quadrature(fold):
-    plane = grid_plane(3.0, 0.5)
-    caster = RayCaster(plane)
-    rng = np.random.default_rng(2)
-    p0, p1 = np.array([-0.6, 0.1, 2.2]), np.array([0.6, 0.1, 2.2])
-    # Floor receivers (under and beyond the ends) and tilted ones (horizon clipping).
-    p = np.concatenate([plane.vertices[::3], rng.uniform([-2, -2, 0.5], [2, 2, 2.0], (20, 3))])
-    n = np.concatenate(
-        [
-            np.tile([0.0, 0.0, 1.0], (len(plane.vertices[::3]), 1)),
-            unit_rows(rng.normal(size=(20, 3))),
-        ]
-    )
+    caster, p0, p1, p, n = _line_scene()
     basis = LineBasis(32, 5, fold)
     f = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], basis, segments=4)
     assert f.shape == (len(p), basis.size)
