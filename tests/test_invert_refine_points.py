@@ -74,3 +74,19 @@ def test_refinement_without_usable_receivers_returns_the_start() -> None:
         np.array([2.0, 1.5, 1.5]), [0, 0, 1], basis,
     )  # fmt: skip
     assert ref.shift == 0.0 and ref.evaluations <= 1
+
+
+def test_refinement_across_the_room_keeps_the_height() -> None:
+    caster, p, n = _room()
+    basis = InclinationBasis(32)
+    truth = np.array([1.3, 1.1, 1.6])
+    color = np.ones(3) / np.sqrt(3)
+    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
+    target = (f @ _lamp_profile(basis))[:, None] * color[None, :]
+    start = truth + np.array([0.08, -0.06, 0.0])
+    ref = refine_point_position(
+        caster, p, n, target, np.ones_like(target), color, start, [0, 0, 1], basis,
+        clearance=0.05, free=(0, 1),
+    )  # fmt: skip
+    assert ref.position[2] == start[2]
+    assert np.linalg.norm(ref.position - truth) < 0.01

@@ -142,6 +142,15 @@ class InvertOptions:
         Metres a point light may move in that refinement.
     refine_max_receivers : int
         Clustered receivers (a seeded random subset) the refinement fits at most.
+    refine_height : bool
+        Let the refinement change a light's height too (False: only across the room).
+        On `furnished` the height matters for the recessed downlight: refined in 3D it
+        goes 3 cm up into its can (power −15/−20/−26 % → −7/−9/−11 %); across the room
+        only, it stays put (docs/invert.md).
+    refine_recess : float
+        Metres a refined point light may rise above the ceiling plane (the median height
+        of the ceiling's clustered receivers), into a recess. Kept below it, the fit
+        took the downlight 27 cm down into the room instead.
     refine_min_gain : float
         The refined positions are kept only if the objective falls by at least this
         fraction: on a scan whose lights explain the photos poorly (the demo, whose
@@ -176,6 +185,8 @@ class InvertOptions:
     refine_max_shift: float = 0.3
     refine_max_receivers: int = 20000
     refine_min_gain: float = 0.02
+    refine_height: bool = True
+    refine_recess: float = 0.05
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
     pictures: bool = True
@@ -651,6 +662,18 @@ def _refine_point_lights(
     # the irradiance residual of the light's share.
     weight = np.where(ok[:, None], np.nan_to_num(result.weights) * (rho_safe / np.pi) ** 2, 0.0)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
+    # A light stays in the room: above the floor the solve fitted, and at most
+    # `refine_recess` above its ceiling plane (a downlight sits in a can there: on
+    # `furnished` the fit puts it 3 cm up, where the ceiling's receivers no longer face
+    # it, as the can's walls hide it from them).
+    z = p_recv[rows, 2]
+    names = list(CLUSTER_LABELS)
+    ceiling = problem.cluster == names.index("ceiling")
+    floor = problem.cluster == names.index("floor")
+    if ceiling.sum() >= 10:
+        hi[2] = min(hi[2], float(np.median(z[ceiling])) + options.refine_recess)
+    if floor.sum() >= 10:
+        lo[2] = max(lo[2], float(np.median(z[floor])) + 0.01)
     # Each trial position casts a shadow ray per receiver: a seeded subset keeps a
     # 200k-vertex room as cheap as a small one (the fit has 32 unknowns and 3 coordinates).
     use = np.arange(len(rows))
@@ -679,6 +702,7 @@ def _refine_point_lights(
             clearance=options.point_clearance,
             max_shift=options.refine_max_shift,
             bounds=(lo, hi),
+            free=(0, 1, 2) if options.refine_height else (0, 1),
         )
         info[k]["refinement"] = {
             "shift_m": ref.shift,

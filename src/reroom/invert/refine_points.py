@@ -100,6 +100,7 @@ def refine_point_position(
     bounds: tuple[np.ndarray, np.ndarray] | None = None,
     smooth: float = 1e-3,
     max_evaluations: int = 120,
+    free: tuple[int, ...] = (0, 1, 2),
 ) -> PointRefinement:
     """Move one point light to where its share of the solved lighting fits best.
 
@@ -129,6 +130,9 @@ def refine_point_position(
         Weight of the profile's smoothness relative to its largest data curvature.
     max_evaluations:
         Positions tried at most.
+    free:
+        The coordinates that may change (``(0, 1)``: only across the room, the height
+        kept).
     """
     x0 = np.asarray(position, dtype=np.float64).reshape(3)
     ax = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -139,6 +143,13 @@ def refine_point_position(
     if bounds is not None:
         lo, hi = (np.asarray(b, dtype=np.float64).reshape(3) for b in bounds)
     seen: dict[tuple, float] = {}
+
+    axes = np.asarray(free, dtype=np.int64)
+
+    def full(y: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[axes] = y
+        return x
 
     def cost(x: np.ndarray) -> float:
         key = tuple(np.round(x, 6))
@@ -157,10 +168,11 @@ def refine_point_position(
     if not np.isfinite(start) or len(p) < basis.size:
         return PointRefinement(x0, 0.0, start, start, len(seen))
     step = min(0.05, max_shift / 2)
-    simplex = np.vstack([x0, x0 + step * np.eye(3)])
+    y0 = x0[axes]
+    simplex = np.vstack([y0, y0 + step * np.eye(len(axes))])
     sol = scipy.optimize.minimize(
-        cost,
-        x0,
+        lambda y: cost(full(y)),
+        y0,
         method="Nelder-Mead",
         options={
             "initial_simplex": simplex,
@@ -169,7 +181,7 @@ def refine_point_position(
             "maxfev": max_evaluations,
         },
     )
-    best = np.asarray(sol.x, dtype=np.float64)
+    best = full(np.asarray(sol.x, dtype=np.float64))
     end = cost(best)
     if not end < start:
         best, end = x0, start
