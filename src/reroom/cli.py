@@ -398,6 +398,13 @@ def invert(
         int,
         typer.Option(help="Input frames to re-render from the model next to the photos (0: none)."),
     ] = 4,
+    refine_points: Annotated[
+        bool,
+        typer.Option(
+            help="Move point lights (up to 0.3 m) to where the solved lighting fits the "
+            "photos best; --no-refine-points keeps the positions given."
+        ),
+    ] = True,
 ) -> None:
     """Inverse rendering: light intensities and distributions, albedos (thesis ch. 5)."""
     from reroom.invert.pipeline import InvertOptions, run_invert
@@ -408,6 +415,7 @@ def invert(
         receiver_voxel=voxel,
         solve=SolveOptions(method=method),  # type: ignore[arg-type]
         pictures=pictures,
+        refine_points=refine_points,
     )
     with _errors(), _progress() as cb:
         result = run_invert(scan, out, opts, progress=cb)
