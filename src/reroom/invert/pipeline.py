@@ -27,6 +27,7 @@ from reroom.hdr.observe import vertex_normals
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
+from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
     InverseProblem,
@@ -97,6 +98,13 @@ class InvertOptions:
         Points sampled on each area light per receiver (its transfer integrates over
         the light's surface: the hemisphere rays' hit count is far too noisy for
         small lights, see :mod:`reroom.invert.area`).
+    window_samples : int
+        Points sampled on each window opening per receiver
+        (:func:`reroom.invert.portal.window_portal_transfer`): the window's transfer
+        integrates over the opening. 0 counts the hemisphere rays that leave through it
+        instead (the thesis's hemicube, as sampled rays): unbiased but so noisy per cube
+        cell that the solve dims the cells seen at grazing angles (regression dilution;
+        docs/invert.md, "Windows as portals").
     fixture_margin : float
         Metres: vertices this close to a line light (beyond its radius) or to a point
         light are its glowing fixture, left out of the indirect light.
@@ -174,6 +182,7 @@ class InvertOptions:
     receiver_voxel: float = 0.1
     line_segments: int = 16
     area_samples: int = DEFAULT_AREA_SAMPLES
+    window_samples: int = DEFAULT_WINDOW_SAMPLES
     fixture_margin: float = 0.05
     receiver_inset: float = 0.0
     point_clearance: float = 0.3
@@ -449,7 +458,24 @@ def run_invert(
         info.append({"name": light.name, "type": "area", "geometry": light.geometry})
     for k, light in enumerate(wins):
         blocks.append(LightBlock(light.name, "window", basis.size, False, basis.adjacency()))
-        columns.append(hemi.distant[:, k, :])
+        if options.window_samples > 0:
+            # Integrated over the opening, as the area lights (reroom.invert.portal); the
+            # hemisphere rays still decide which directions carry indirect light.
+            pane = (window_of[np.asarray(mesh.faces)] == k).any(axis=1)
+            columns.append(
+                window_portal_transfer(
+                    caster,
+                    openings[k],
+                    basis,
+                    p_recv,
+                    n_recv,
+                    options.window_samples,
+                    seed=options.seed + 101 + k,
+                    pane_faces=pane,
+                )
+            )
+        else:
+            columns.append(hemi.distant[:, k, :])
         info.append({"name": light.name, "type": "window", "geometry": light.geometry})
     for light in light_list:
         g = light.geometry

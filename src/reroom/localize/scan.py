@@ -53,6 +53,7 @@ from scipy.optimize import least_squares, nnls
 from scipy.spatial import cKDTree
 
 from reroom.errors import ReroomError
+from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.localize.measurements import shading_jacobian, shading_matrix
 
 __all__ = [
@@ -113,6 +114,12 @@ class ScanLocalizeOptions:
         less than this factor is dropped.
     window_cells:
         Cube-map cells per face side of each window's distant light.
+    window_samples:
+        Points sampled on each window opening per receiver
+        (:func:`reroom.invert.portal.window_portal_transfer`), as ``reroom invert``
+        does; 0 counts the hemisphere rays that leave through it (so noisy per cell that
+        window light the cells cannot fit is left for a false point light near the
+        window: docs/localize.md).
     line_bins:
         Inclination bins of each line light's profile.
     profile_bins:
@@ -203,6 +210,7 @@ class ScanLocalizeOptions:
     min_power: float = 0.05
     prune_ratio: float = 1.1
     window_cells: int = 4
+    window_samples: int = DEFAULT_WINDOW_SAMPLES
     line_bins: int = 4
     profile_bins: int = 32
     height_bins: int = 64
@@ -415,8 +423,16 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
         cols.append(area_light_transfer(caster, mesh, area_of == k, p, n, 256, seed=opt.seed + k))
         names.append(light.name)
     for k, light in enumerate(wins):
+        if opt.window_samples > 0:
+            pane = (win_of[np.asarray(mesh.faces)] == k).any(axis=1)
+            f = window_portal_transfer(
+                caster, openings[k], basis, p, n, opt.window_samples,
+                seed=opt.seed + 101 + k, pane_faces=pane,
+            )  # fmt: skip
+        else:
+            f = hemi.distant[:, k, :]
         for j in range(basis.size):
-            cols.append(hemi.distant[:, k, j])
+            cols.append(f[:, j])
             names.append(f"{light.name}[{j}]")
     incl = InclinationBasis(opt.line_bins)
     for light in lines:
