@@ -23,6 +23,7 @@ of inverse lighting and to the issue's 60 s target for transfer + solve.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 
@@ -138,14 +139,19 @@ def scan_table(scan: str, true_radiance: bool) -> None:
     print(f"\nper-vertex albedo: {ev['per_vertex']}; missed lights: {ev['missed_lights']}\n")
 
 
-def speed_table(scan: str, out: str | None = None) -> None:
-    """Time ``reroom invert`` on ``scan``: per step, rays, and the ratios to the targets."""
+def speed_table(scan: str, out: str | None = None, options: dict | None = None) -> None:
+    """Time ``reroom invert`` on ``scan``: per step, rays, and the ratios to the targets.
+
+    ``options``: InvertOptions other than the defaults (e.g. ``{"window_samples": 0}``).
+    The window portals' ray count is an upper bound: receivers behind a window's plane
+    or facing away from it cast none.
+    """
     import tempfile
     from pathlib import Path
 
     from reroom.invert.pipeline import InvertOptions, run_invert
 
-    opts = InvertOptions(pictures=False)
+    opts = InvertOptions(pictures=False, **(options or {}))
     with tempfile.TemporaryDirectory() as tmp:
         t0, c0 = time.perf_counter(), time.process_time()
         res = run_invert(scan, Path(out) if out else Path(tmp) / "invert", opts)
@@ -162,6 +168,7 @@ def speed_table(scan: str, out: str | None = None) -> None:
     rays = {
         "hemisphere": hemi * opts.rays_per_receiver,
         "area lights": recv * opts.area_samples * kinds.count("area"),
+        "window portals (upper bound)": recv * opts.window_samples * kinds.count("window"),
         "point lights": recv * kinds.count("point"),
         "line lights": recv * opts.line_segments * kinds.count("line"),
         "near filter": clustered * 64,
@@ -210,6 +217,11 @@ def main() -> None:
     ap.add_argument("--scan", default=None)
     ap.add_argument("--true-radiance", action="store_true")
     ap.add_argument("--speed", default=None, help="scan to time reroom invert on")
+    ap.add_argument(
+        "--speed-invert",
+        default="{}",
+        help="InvertOptions as JSON for --speed, e.g. '{\"window_samples\": 0}'",
+    )
     ap.add_argument("--skip-solvers", action="store_true", help="no part 1")
     args = ap.parse_args()
     if not args.skip_solvers:
@@ -218,7 +230,7 @@ def main() -> None:
     if args.scan:
         scan_table(args.scan, args.true_radiance)
     if args.speed:
-        speed_table(args.speed)
+        speed_table(args.speed, options=json.loads(args.speed_invert))
 
 
 if __name__ == "__main__":

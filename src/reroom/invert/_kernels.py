@@ -220,3 +220,67 @@ def line_phi_integrals(
                     if b > a:
                         total += _line_primitive(hi_, a0, a1, b) - _line_primitive(hi_, a0, a1, a)
                 out[i, k, j] = total
+
+
+@nb.njit(cache=True)
+def portal_samples(
+    points: np.ndarray,
+    normals: np.ndarray,
+    centre: np.ndarray,
+    half_u: np.ndarray,
+    half_v: np.ndarray,
+    n_in: np.ndarray,
+    k: int,
+    jitter: np.ndarray,
+    eps: float,
+    tolerance: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """The live samples of :func:`reroom.invert.portal.window_portal_transfer`.
+
+    ``k x k`` jittered points on the rectangle ``centre + s half_u + t half_v`` per point
+    (``jitter`` is ``(n, k * k, 2)`` uniform in ``[0, 1)``). A sample is live where both
+    cosines are positive; for those returns the owner (point index), the shadow ray's
+    start (lifted by ``eps`` along the normal), its segment to the sample, its length
+    less ``tolerance``, ``cos_x cos_y / d^2`` and the direction ``y - x``. Arrays are
+    sized for every sample; the first ``count`` rows are filled.
+    """
+    n = points.shape[0]
+    per = k * k
+    total = n * per
+    owner = np.empty(total, np.int64)
+    start = np.empty((total, 3))
+    seg = np.empty((total, 3))
+    stop = np.empty(total)
+    value = np.empty(total)
+    direction = np.empty((total, 3))
+    count = 0
+    for i in range(n):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        for a in range(k):
+            for b in range(k):
+                j = a * k + b
+                s = 2.0 * (a + jitter[i, j, 0]) / k - 1.0
+                t = 2.0 * (b + jitter[i, j, 1]) / k - 1.0
+                yx = centre[0] + s * half_u[0] + t * half_v[0]
+                yy = centre[1] + s * half_u[1] + t * half_v[1]
+                yz = centre[2] + s * half_u[2] + t * half_v[2]
+                dx, dy, dz = yx - px, yy - py, yz - pz
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 <= 0.0:
+                    continue
+                dist = math.sqrt(d2)
+                cx = (nx * dx + ny * dy + nz * dz) / dist
+                cy = -(n_in[0] * dx + n_in[1] * dy + n_in[2] * dz) / dist
+                if cx <= 0.0 or cy <= 0.0:
+                    continue
+                ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+                sx, sy, sz = yx - ox, yy - oy, yz - oz
+                owner[count] = i
+                start[count, 0], start[count, 1], start[count, 2] = ox, oy, oz
+                seg[count, 0], seg[count, 1], seg[count, 2] = sx, sy, sz
+                stop[count] = math.sqrt(sx * sx + sy * sy + sz * sz) - tolerance
+                value[count] = cx * cy / d2
+                direction[count, 0], direction[count, 1], direction[count, 2] = dx, dy, dz
+                count += 1
+    return owner, start, seg, stop, value, direction, count
