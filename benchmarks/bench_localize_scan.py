@@ -17,6 +17,7 @@ with ``ground_truth/ground_truth.json`` (read here only, never by the estimation
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -113,6 +114,12 @@ def main() -> None:
     ap.add_argument(
         "--no-mount-test", action="store_true", help="keep the goniometric test's best height"
     )
+    ap.add_argument(
+        "--keep-floating", action="store_true", help="keep lights nothing in the scan holds"
+    )
+    ap.add_argument(
+        "--window-samples", type=int, default=None, help="portal samples (0: hemisphere rays)"
+    )
     ap.add_argument("--json", type=Path, help="also write the results here")
     args = ap.parse_args()
     opt = ScanLocalizeOptions(
@@ -129,7 +136,10 @@ def main() -> None:
         profile_gain=args.profile_gain,
         height_bins=args.height_bins,
         mount_test=not args.no_mount_test,
+        drop_floating=not args.keep_floating,
     )
+    if args.window_samples is not None:
+        opt = dataclasses.replace(opt, window_samples=args.window_samples)
     out = []
     for scan in args.scans:
         res, info = localize_scan(scan, opt)
@@ -142,6 +152,7 @@ def main() -> None:
             gains=[h["gain"] for h in res.history],
             leave_one_out=info["leave_one_out"],
             goniometric=info["goniometric"],
+            floating=info["floating"],
         )
         out.append(ev)
         print(f"\n## {scan} (room size {ev['size_m']:.2f} m, {res.seconds:.0f} s, "
@@ -163,6 +174,8 @@ def main() -> None:
             for t in info["leave_one_out"]
         )
         print(f"cost ratio without each light (drop below {opt.prune_ratio}): {loo or '-'}")
+        for f in info["floating"]:
+            print(f"light at {np.round(f['position'], 3).tolist()}: {f['reason']}")
         for k, g in enumerate(res.goniometric):
             if g is not None:
                 print(f"light {k}: goniometric, moved {g['moved_m']:.2f} m (soft-L1 cost "

@@ -187,6 +187,13 @@ class ScanLocalizeOptions:
         hold it (no vertex other than floor and ceiling near it, ``vertex_labels`` needed)
         and the data allow the mounted position (``mount_tolerance``): a light cannot
         float, so it is in the surface above (docs/localize.md).
+    drop_floating:
+        After the goniometric test (and its mounting), drop a light that nothing in the
+        scan can hold: farther than ``mount_depth`` below the surface above it, with no
+        vertex but floor and ceiling within ``mount_radius`` of its vertical (no shade,
+        stand, pendant or wall; :func:`_floating`), then refit and place the others again.
+        On `box` such a light fitted the grazing patch of window light on a wall that
+        the window's 96 cells cannot draw (docs/localize.md).
     soft_scale:
         Scale of the soft-L1 loss, as a fraction of the median ``pi L``.
     time_limit:
@@ -229,6 +236,7 @@ class ScanLocalizeOptions:
     search_albedo_update: str = "bounded"
     search_albedo_bound: float = 0.05
     mount_unsupported: bool = True
+    drop_floating: bool = True
     downward_candidates: bool = False
     soft_scale: float = 0.3
     time_limit: float = 900.0
@@ -745,14 +753,36 @@ def localize_scan(
     # found low lights the ceiling, the real one does not), so the albedos are estimated
     # again from its lights and the test repeated from the isotropic lights.
     u_search = {c: u[j] for j, c in enumerate(full.classes) if c in opt.classes}
-    direct = shading_matrix(full.points, full.normals, pos, full.visibility(pos, down)) @ inten
-    profiles: list[dict | None] = [None] * len(pos)
-    for _ in range(opt.albedo_rounds):
-        u = _albedo_from(full, direct, u)
-        profiles = _goniometric_test(
-            full, pos, inten, u, (lo, hi), layout, opt, verts, vert_labels, down
-        )
-        direct = _lights_direct(full, pos, inten, profiles, down)
+    u_found = u.copy()
+    floating: list[dict] = []
+    while True:
+        u = u_found.copy()
+        direct = shading_matrix(full.points, full.normals, pos, full.visibility(pos, down)) @ inten
+        profiles: list[dict | None] = [None] * len(pos)
+        for _ in range(opt.albedo_rounds):
+            u = _albedo_from(full, direct, u)
+            profiles = _goniometric_test(
+                full, pos, inten, u, (lo, hi), layout, opt, verts, vert_labels, down
+            )
+            direct = _lights_direct(full, pos, inten, profiles, down)
+        placed = pos.copy()
+        for k, pr in enumerate(profiles):
+            if pr is not None:
+                placed[k] = pr["position"]
+        held = np.ones(len(pos), bool)
+        if opt.drop_floating and vert_labels is not None:
+            for k in range(len(pos)):
+                why = _floating(full.caster, verts, vert_labels, placed[k], opt)
+                if why is not None:
+                    held[k] = False
+                    floating.append({"position": placed[k].tolist(), "reason": why})
+        if held.all():
+            break
+        # A light that nothing can hold is a fit of light the other models miss (a
+        # window's grazing patch on `box`): drop it, refit the rest, place them again.
+        pos, inten, down = pos[held], inten[held], down[held]
+        if len(pos):
+            pos, inten, x, rms = _joint_fit(prob, pos, inten, u_found, x, bounds, soft, down)
     u = _albedo_from(full, direct, u)
     pos, inten = pos.copy(), inten.copy()
     for k, pr in enumerate(profiles):
@@ -779,6 +809,7 @@ def localize_scan(
         "rms_relative": rms,
         "stopped": reason,
         "leave_one_out": pruned,
+        "floating": floating,
         "downward": down.tolist(),
         "goniometric": [
             None if pr is None else {k: v for k, v in pr.items() if k != "profile"}
@@ -965,6 +996,32 @@ def _enclosed(verts: np.ndarray, labels: np.ndarray, p: np.ndarray, radius: floa
         return False
     sector = np.floor((np.arctan2(d[body, 1], d[body, 0]) + np.pi) / (np.pi / 4)).astype(int) % 8
     return len(np.unique(sector)) >= 6
+
+
+def _floating(
+    caster, verts: np.ndarray, labels: np.ndarray, p: np.ndarray, opt: ScanLocalizeOptions
+) -> str | None:
+    """Why nothing in the scan can hold a light at ``p`` (None: something can).
+
+    A light hangs from, stands on or is fixed to something: it is held when it sits
+    within ``mount_depth`` of the surface above it (a ceiling fitting), or when the scan
+    shows anything but floor and ceiling within ``mount_radius`` of its vertical below
+    that surface (a lamp's shade or stand, a pendant's shade, a wall for a sconce), the
+    column :func:`_mount_test` searches for a body too.
+    """
+    hit = caster.intersect(p[None], np.array([[0.0, 0.0, 1.0]]))
+    top = float(p[2] + hit.t[0]) if bool(hit.hit[0]) else np.inf
+    if top - p[2] <= opt.mount_depth:
+        return None
+    near = np.linalg.norm(verts[:, :2] - p[:2], axis=1) < opt.mount_radius
+    body = near & (verts[:, 2] < top - opt.mount_clearance) & ~np.isin(labels, (FLOOR, CEILING))
+    if body.any():
+        return None
+    return (
+        f"floating: {top - p[2]:.2f} m below the surface above, and nothing but floor and "
+        f"ceiling within {opt.mount_radius} m of its vertical (no shade, stand, pendant or "
+        "wall): dropped"
+    )
 
 
 def _mount_test(
