@@ -26,6 +26,7 @@ from reroom.localize.scan import (
     ScanLocalizeResult,
     _discovery_gain,
     _enclosed,
+    _floating,
     _mount_test,
     _Problem,
     localize_into_lights,
@@ -114,7 +115,9 @@ def room_scan(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def localized(room_scan: Path) -> tuple[ScanLocalizeResult, dict]:
-    return localize_scan(room_scan, ScanLocalizeOptions(rays_per_vertex=128, time_limit=120))
+    # Bare bulbs in an empty box: nothing holds them, so they are kept explicitly.
+    opts = ScanLocalizeOptions(rays_per_vertex=128, time_limit=120, drop_floating=False)
+    return localize_scan(room_scan, opts)
 
 
 def test_finds_both_lights_within_five_percent(localized):
@@ -337,3 +340,49 @@ def test_discovery_gain_weighs_outliers_down():
     assert int(np.argmax(gain)) == 0, gain
     plain, _ = _discovery_gain(s, r, np.zeros((400, 0)), scale=1e9)
     assert int(np.argmax(plain)) == 1, plain
+
+
+def _grid_room() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The 4 x 3 x 2.5 m box as 0.25 m vertex grids, labelled wall / floor / ceiling."""
+    verts, faces, labels, off = [], [], [], 0
+    for axis in range(3):
+        for side in (0.0, SIZE[axis]):
+            v, f, lab = _face_grid(axis, side, 0.25)
+            verts.append(v)
+            faces.append(f + off)
+            labels.append(np.full(len(v), lab))
+            off += len(v)
+    mesh = trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
+    return mesh, np.concatenate(labels)
+
+
+def test_floating_light_is_one_nothing_can_hold():
+    mesh, labels = _grid_room()
+    opt = ScanLocalizeOptions()
+    caster = RayCaster(mesh)
+    verts = np.asarray(mesh.vertices)
+    # In mid-air, 1.3 m below the ceiling, nothing but floor and ceiling around its vertical.
+    why = _floating(caster, verts, labels, np.array([2.0, 1.5, 1.2]), opt)
+    assert why is not None and why.startswith("floating: 1.30 m below the surface above"), why
+    # Just under the ceiling (a ceiling fitting), or beside a wall (a sconce): held.
+    assert _floating(caster, verts, labels, np.array([2.0, 1.5, 2.45]), opt) is None
+    assert _floating(caster, verts, labels, np.array([0.2, 1.5, 1.2]), opt) is None
+    # A lamp's stand under it holds it; the same stand 0.5 m away does not.
+    for x, held in ((2.05, True), (2.5, False)):
+        stand = trimesh.creation.box(extents=[0.1, 0.1, 1.0])
+        stand.apply_translation([x, 1.5, 0.5])
+        both = trimesh.util.concatenate([mesh, stand])
+        lab = np.r_[labels, np.full(len(stand.vertices), 255)]
+        got = _floating(
+            RayCaster(both), np.asarray(both.vertices), lab, np.array([2.0, 1.5, 1.2]), opt
+        )
+        assert (got is None) == held, (x, got)
+
+
+def test_floating_lights_dropped_by_default(room_scan: Path, localized):
+    # The fixture's bare bulbs float in an empty box: the default drops them and says why.
+    res, info = localize_scan(room_scan, ScanLocalizeOptions(rays_per_vertex=128, time_limit=120))
+    assert len(res.positions) == 0, res.positions
+    kept, _ = localized
+    assert len(info["floating"]) >= len(kept.positions)
+    assert all(f["reason"].startswith("floating:") for f in info["floating"])

@@ -358,6 +358,14 @@ def localize(
             help="Also merge the lights into SCAN/lights/lights.json (for `reroom invert`)."
         ),
     ] = False,
+    keep_floating: Annotated[
+        bool,
+        typer.Option(
+            help="Keep a light that nothing in the scan holds (no shade, stand, pendant or "
+            "wall near it, not just under the ceiling); dropped by default as a fit of light "
+            "the other light models miss."
+        ),
+    ] = False,
 ) -> None:
     """Point lights from the direct light on walls and ceiling (thesis ch. 6)."""
     from reroom.localize.scan import (
@@ -369,11 +377,15 @@ def localize(
 
     out = out or scan / "localize"
     with _errors():
-        res, info = localize_scan(scan, ScanLocalizeOptions(time_limit=time_limit))
+        opts = ScanLocalizeOptions(time_limit=time_limit, drop_floating=not keep_floating)
+        res, info = localize_scan(scan, opts)
         path = write_localized_lights(res, info, out)
         merged = localize_into_lights(scan, res, info) if into_lights else None
     for p, i in zip(res.positions, res.intensities, strict=True):
         console.print(f"point light at {p.round(3).tolist()} m, intensity {i:.3g}")
+    for f in info["floating"]:
+        where = [round(float(c), 3) for c in f["position"]]
+        console.print(f"[yellow]dropped[/] a light at {where} m: {f['reason']}")
     console.print(f"albedo {info['albedo']}; stopped: {info['stopped']}")
     console.print(f"[green]wrote[/] {path}")
     if merged is not None:
