@@ -367,16 +367,17 @@ def test_floating_light_is_one_nothing_can_hold():
     # Just under the ceiling (a ceiling fitting), or beside a wall (a sconce): held.
     assert _floating(caster, verts, labels, np.array([2.0, 1.5, 2.45]), opt) is None
     assert _floating(caster, verts, labels, np.array([0.2, 1.5, 1.2]), opt) is None
-    # A lamp's stand under it holds it; the same stand 0.5 m away does not.
-    for x, held in ((2.05, True), (2.5, False)):
-        stand = trimesh.creation.box(extents=[0.1, 0.1, 1.0])
-        stand.apply_translation([x, 1.5, 0.5])
+    # A lamp's stand under it holds it; the same stand 0.5 m away or a stool far below
+    # it does not.
+    for x, height, held in ((2.05, 1.0, True), (2.5, 1.0, False), (2.05, 0.4, False)):
+        stand = trimesh.creation.box(extents=[0.1, 0.1, height])
+        stand.apply_translation([x, 1.5, height / 2])
         both = trimesh.util.concatenate([mesh, stand])
         lab = np.r_[labels, np.full(len(stand.vertices), 255)]
         got = _floating(
             RayCaster(both), np.asarray(both.vertices), lab, np.array([2.0, 1.5, 1.2]), opt
         )
-        assert (got is None) == held, (x, got)
+        assert (got is None) == held, (x, height, got)
 
 
 def test_floating_lights_dropped_by_default(room_scan: Path, localized):

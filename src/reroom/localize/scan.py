@@ -194,6 +194,9 @@ class ScanLocalizeOptions:
         stand, pendant or wall; :func:`_floating`), then refit and place the others again.
         On `box` such a light fitted the grazing patch of window light on a wall that
         the window's 96 cells cannot draw (docs/localize.md).
+    hold_reach:
+        Metres below a light within which a body (a stand's top, a table lamp's base)
+        holds it (``drop_floating``).
     soft_scale:
         Scale of the soft-L1 loss, as a fraction of the median ``pi L``.
     time_limit:
@@ -237,6 +240,7 @@ class ScanLocalizeOptions:
     search_albedo_bound: float = 0.05
     mount_unsupported: bool = True
     drop_floating: bool = True
+    hold_reach: float = 0.5
     downward_candidates: bool = False
     soft_scale: float = 0.3
     time_limit: float = 900.0
@@ -1005,9 +1009,9 @@ def _floating(
 
     A light hangs from, stands on or is fixed to something: it is held when it sits
     within ``mount_depth`` of the surface above it (a ceiling fitting), or when the scan
-    shows anything but floor and ceiling within ``mount_radius`` of its vertical below
-    that surface (a lamp's shade or stand, a pendant's shade, a wall for a sconce), the
-    column :func:`_mount_test` searches for a body too.
+    shows anything but floor and ceiling within ``mount_radius`` of its vertical, from
+    ``hold_reach`` below the light up to that surface (a lamp's shade or the top of its
+    stand, a pendant's shade, a wall for a sconce). A table far below does not hold it.
     """
     hit = caster.intersect(p[None], np.array([[0.0, 0.0, 1.0]]))
     top = float(p[2] + hit.t[0]) if bool(hit.hit[0]) else np.inf
@@ -1015,12 +1019,13 @@ def _floating(
         return None
     near = np.linalg.norm(verts[:, :2] - p[:2], axis=1) < opt.mount_radius
     body = near & (verts[:, 2] < top - opt.mount_clearance) & ~np.isin(labels, (FLOOR, CEILING))
+    body &= verts[:, 2] > p[2] - opt.hold_reach
     if body.any():
         return None
     return (
         f"floating: {top - p[2]:.2f} m below the surface above, and nothing but floor and "
-        f"ceiling within {opt.mount_radius} m of its vertical (no shade, stand, pendant or "
-        "wall): dropped"
+        f"ceiling within {opt.mount_radius} m of its vertical from {opt.hold_reach} m below "
+        "it up (no shade, stand, pendant or wall): dropped"
     )
 
 
