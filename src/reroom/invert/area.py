@@ -28,6 +28,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike
 
+from reroom.invert.direct import receiver_arrays
 from reroom.rays import RayCaster
 
 __all__ = ["DEFAULT_AREA_SAMPLES", "area_light_transfer"]
@@ -87,14 +88,7 @@ def area_light_transfer(
     on = np.asarray(light_vertices, dtype=bool)
     if on.shape != (len(verts),):
         raise ValueError(f"light_vertices must have shape ({len(verts)},), got {on.shape}")
-    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
-    n = np.atleast_2d(np.asarray(normals, dtype=np.float64))
-    if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
-        raise ValueError(f"points and normals must both be (N, 3), got {p.shape} and {n.shape}")
-    length = np.linalg.norm(n, axis=1)
-    if np.any(~(length > 0)):
-        raise ValueError("normals must be non-zero")
-    n = n / length[:, None]
+    p, n = receiver_arrays(points, normals)
     out = np.zeros(len(p))
 
     # Triangles touching the light, weighted by area x the mean light share of their corners.

@@ -54,9 +54,12 @@ DEFAULT_LINE_SEGMENTS = 32
 _BATCH = 1 << 21
 
 
-def _points_normals(
-    points: ArrayLike, normals: ArrayLike, offset: float | ArrayLike | None, caster: RayCaster
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def receiver_arrays(points: ArrayLike, normals: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Receiving points and unit normals as ``(N, 3)`` float arrays, checked.
+
+    Shared by every light model's transfer. Raises ValueError for other shapes,
+    non-finite points or zero normals.
+    """
     p = np.atleast_2d(np.asarray(points, dtype=np.float64))
     n = np.atleast_2d(np.asarray(normals, dtype=np.float64))
     if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
@@ -64,7 +67,13 @@ def _points_normals(
     length = np.linalg.norm(n, axis=1)
     if np.any(~(length > 0)) or not np.isfinite(p).all():
         raise ValueError("points must be finite and normals non-zero")
-    n = n / length[:, None]
+    return p, n / length[:, None]
+
+
+def _points_normals(
+    points: ArrayLike, normals: ArrayLike, offset: float | ArrayLike | None, caster: RayCaster
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    p, n = receiver_arrays(points, normals)
     off = np.broadcast_to(
         np.asarray(caster.eps if offset is None else offset, dtype=np.float64), (len(p),)
     )

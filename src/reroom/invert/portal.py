@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike
 
 from reroom.invert._kernels import portal_samples
 from reroom.invert.basis import CubemapBasis, SHBasis
+from reroom.invert.direct import receiver_arrays
 from reroom.invert.windows import WindowOpening
 from reroom.rays import RayCaster
 
@@ -100,14 +101,7 @@ def window_portal_transfer(
     """
     if samples < 1:
         raise ValueError(f"samples must be positive, got {samples}")
-    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
-    n = np.atleast_2d(np.asarray(normals, dtype=np.float64))
-    if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
-        raise ValueError(f"points and normals must both be (N, 3), got {p.shape} and {n.shape}")
-    length = np.linalg.norm(n, axis=1)
-    if np.any(~(length > 0)):
-        raise ValueError("normals must be non-zero")
-    n = n / length[:, None]
+    p, n = receiver_arrays(points, normals)
     out = np.zeros((len(p), basis.size))
     if len(p) == 0:
         return out
