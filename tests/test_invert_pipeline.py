@@ -112,6 +112,31 @@ def test_fill_poorly_seen_bins():
         fill_poorly_seen(profile, support[:3], 0.01)
 
 
+def test_window_cells_fill_poorly_seen_and_unseen_cells():
+    from types import SimpleNamespace
+
+    from reroom.invert.basis import CubemapBasis
+    from reroom.invert.export import fill_poorly_seen, window_cells
+
+    basis = CubemapBasis(2)
+    cells = np.tile([[1.0, 2.0, 3.0]], (basis.size, 1))
+    support = np.full(basis.size, 5.0)
+    cells[7] = 600.0  # a cell barely seen (one grazing receiver) solved far too bright
+    support[7] = 0.01
+    support[11] = 0.0  # and one no receiver sees
+    cells[11] = 0.0
+    result = SimpleNamespace(solve=SimpleNamespace(intensities={"w": cells}), cubemap_n=2)
+    got = window_cells(result, "w", support, 0.01)
+    # Both get the harmonic fill of their well-seen neighbours (here all equal): a window's
+    # unseen cell is still sky, unlike a light's hidden bin, which stays 0.
+    np.testing.assert_allclose(got, np.tile([[1.0, 2.0, 3.0]], (basis.size, 1)))
+    np.testing.assert_allclose(window_cells(result, "w", None, 0.01), cells)
+    pairs = basis.adjacency()
+    assert fill_poorly_seen(cells[:, 0], support, 0.01, pairs)[11] == 0.0
+    with pytest.raises(ValueError, match="unseen"):
+        fill_poorly_seen(cells[:, 0], support, 0.01, pairs, "nearest")
+
+
 def test_fill_poorly_seen_on_a_graph():
     from reroom.invert.basis import LineBasis
     from reroom.invert.export import fill_poorly_seen
