@@ -255,6 +255,15 @@ def main() -> None:
     ]
 
     strips = out / "strips"
+    # The recovered model ours renders: a re-run after a model change re-renders ours.
+    model_key = _key(
+        str(scan_dir.resolve()),
+        *(
+            hashlib.sha1(f.read_bytes()).hexdigest()
+            for f in (scan_dir / "invert" / "scene.json", scan_dir / "lights" / "lights.json")
+            if f.is_file()
+        ),
+    )
     results: list[dict[str, Any]] = []
     floors: dict[str, dict[str, float]] = {}  # view -> floor figures (reference row)
     chosen = [e for e in args.edits.split(",") if e]
@@ -287,10 +296,10 @@ def main() -> None:
         mops = model_edits(ops, names, truth_desc)
 
         def render_ours(seed: int, folder: str, mops: list = mops, edit: str = edit) -> list:
-            """Ours per view in image units (cached: same edits, spp, depth and seed)."""
+            """Ours per view in image units (cached: same model, edits, spp, depth, seed)."""
             dest = out / folder / edit
             meta = dest / f"{edit}.json"
-            want = _key(mops, args.spp, args.model_max_depth, seed, cams_json, frames)
+            want = _key(mops, args.spp, args.model_max_depth, seed, cams_json, frames, model_key)
             if meta.is_file() and json.loads(meta.read_text()).get("bench_key") == want:
                 doc = json.loads(meta.read_text())
             else:
