@@ -255,7 +255,13 @@ def main() -> None:
     ]
 
     strips = out / "strips"
-    # The recovered model ours renders: a re-run after a model change re-renders ours.
+    # The recovered model ours renders, and the code that renders it: a re-run after a
+    # change to either re-renders ours.
+    import reroom
+
+    code = sorted(
+        f for sub in ("edit", "render") for f in (Path(reroom.__file__).parent / sub).glob("*.py")
+    )
     model_key = _key(
         str(scan_dir.resolve()),
         *(
@@ -263,6 +269,7 @@ def main() -> None:
             for f in (scan_dir / "invert" / "scene.json", scan_dir / "lights" / "lights.json")
             if f.is_file()
         ),
+        *(hashlib.sha1(f.read_bytes()).hexdigest() for f in code),
     )
     results: list[dict[str, Any]] = []
     floors: dict[str, dict[str, float]] = {}  # view -> floor figures (reference row)

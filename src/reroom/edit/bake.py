@@ -57,7 +57,9 @@ def bake_vertex_radiance(
     from reroom.render.frames import probe_radiance
 
     if isinstance(scene, dict):
-        scene = mitsuba().load_dict(scene, optimize=False)
+        from reroom.render.glow import split_glow
+
+        scene = mitsuba().load_dict(split_glow(scene)[0], optimize=False)
     v = np.asarray(vertices, np.float64)
     n = np.asarray(normals, np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or n.shape != v.shape:

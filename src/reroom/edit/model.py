@@ -24,8 +24,11 @@ renders it.
   and along the line (``distribution.phi_bins``), or the separable ``theta`` profile of
   files written before the ``phi`` bins.
 * **Glowing fittings**: faces of vertices ``albedo.ply`` flags as ``light`` that are not
-  an area light's (a tube's own surface) are left out: their light is in the solved
-  distribution, and their mesh would enclose the emitter.
+  an area light's (a tube's own surface) are left out of the light transport: their
+  light is in the solved distribution, and their mesh would enclose the emitter. Each
+  point or line light within ``GLOW_REACH`` of them gets them as a ``reroom_glow`` entry,
+  which the renderer shows glowing with the radiance the solved light implies
+  (:mod:`reroom.render.glow`).
 """
 
 from __future__ import annotations
@@ -41,7 +44,13 @@ from reroom.io.images import read_exr
 from reroom.io.jsonfile import read_json
 from reroom.io.mesh import read_ply, write_ply
 
-__all__ = ["model_scene", "point_light_table"]
+__all__ = ["GLOW_REACH", "model_scene", "point_light_table"]
+
+#: Glowing faces within this distance (metres) of a point light or of a line light's
+#: segment are that light's visible glow (a bulb, a tube's surface). Tight, as the bright
+#: inside of a tube's housing is flagged too but does not glow by itself: with it the
+#: glow of the furnished scene's tube spread over twice its width at half its radiance.
+GLOW_REACH = {"point": 0.1, "line": 0.05}
 
 
 def point_light_table(
@@ -220,7 +229,9 @@ def model_scene(
         # and block it (the transfer ignores geometry that close to a light), so they
         # are not rendered as surfaces.
         glow = np.asarray(attrs["light"]).astype(bool)
-        keep &= ~(glow[faces].sum(axis=1) >= 2)
+        glow_faces = (glow[faces].sum(axis=1) >= 2) & ~emitting
+        keep &= ~glow_faces
+        _add_glows(scene, model.get("lights", []), vertices, faces, glow_faces, work)
     room = write_ply(
         work / "room.ply",
         trimesh.Trimesh(vertices, faces[keep], process=False),
@@ -235,3 +246,54 @@ def model_scene(
         },
     }
     return scene
+
+
+def _add_glows(
+    scene: dict[str, Any],
+    lights: list[dict[str, Any]],
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    glow_faces: np.ndarray,
+    work: Path,
+) -> None:
+    """Give each point or line light the glowing faces nearest to it (``glow_<k>`` entries)."""
+    from reroom.render.glow import glow_entry
+
+    idx = np.flatnonzero(glow_faces)
+    if len(idx) == 0:
+        return
+    centroid = vertices[faces[idx]].mean(axis=1)
+    dist, centres = [], []
+    for light in lights:
+        geo = light.get("geometry", {})
+        if light["type"] == "point":
+            c = np.asarray(geo["position"], float)
+            dist.append(np.linalg.norm(centroid - c, axis=1))
+            centres.append(c)
+        elif light["type"] == "line":
+            a, b = np.asarray(geo["p0"], float), np.asarray(geo["p1"], float)
+            ab = b - a
+            t = np.clip(((centroid - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+            dist.append(np.linalg.norm(centroid - (a + t[:, None] * ab), axis=1))
+            centres.append((a + b) / 2.0)
+        else:
+            dist.append(np.full(len(idx), np.inf))
+            centres.append(None)
+    if not dist:
+        return
+    reach = np.array([GLOW_REACH.get(light["type"], 0.0) for light in lights])
+    d = np.stack(dist, axis=1)
+    nearest = np.argmin(d, axis=1)
+    near = d[np.arange(len(idx)), nearest] <= reach[nearest]
+    for k, centre in enumerate(centres):
+        key = f"light_{k:02d}"
+        sel = idx[near & (nearest == k)]
+        if centre is None or key not in scene or len(sel) == 0:
+            continue
+        used, local = np.unique(faces[sel], return_inverse=True)
+        path = write_ply(
+            work / f"glow_{k:02d}.ply",
+            trimesh.Trimesh(vertices[used], local.reshape(-1, 3), process=False),
+            {},
+        )
+        scene[f"glow_{k:02d}"] = glow_entry(str(path), key, centre)

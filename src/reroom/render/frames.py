@@ -27,11 +27,16 @@ class FrameRenderer:
     """
 
     def __init__(self, scene_dict: dict[str, Any], intr: Intrinsics, spp: int) -> None:
+        from reroom.render.glow import glow_sources, split_glow
+
         mi = mitsuba()
         self.mi = mi
         self.intr = intr
         self.spp = spp
-        d = dict(scene_dict)
+        d, glows = split_glow(scene_dict)
+        # Glowing fittings of point and line lights (reroom.render.glow): composited
+        # after the path tracer, as they are not part of the light transport.
+        self.glows = glow_sources(d, glows)
         d["sensor"] = perspective_sensor(np.eye(4), intr, spp)
         self.scene = mi.load_dict(d, optimize=False)
         self.params = mi.traverse(self.scene)
@@ -43,8 +48,13 @@ class FrameRenderer:
         mi = self.mi
         self.params["sensor.to_world"] = mitsuba_to_world(c2w)
         self.params.update()
-        img = mi.render(self.scene, spp=self.spp, seed=seed)
-        return np.asarray(img, dtype=np.float32)[..., :3]
+        img = np.asarray(mi.render(self.scene, spp=self.spp, seed=seed), dtype=np.float32)[..., :3]
+        if self.glows:
+            from reroom.render.glow import glow_layer
+
+            glow, cover = glow_layer(self.scene, self.glows, c2w, self.intr)
+            img = (img * (1.0 - cover[..., None]) + glow).astype(np.float32)
+        return img
 
 
 def probe_radiance(
