@@ -177,7 +177,7 @@ def main() -> None:
     ap.add_argument("--truth-spp", type=int, default=256)
     ap.add_argument("--frames", default="5,15,40", help="input frame indices")
     ap.add_argument("--edits", default=",".join(EDIT_SETS), help="edit sets to run")
-    ap.add_argument("--model-max-depth", type=int, default=8)
+    ap.add_argument("--model-max-depth", type=int, default=64)
     ap.add_argument(
         "--floor",
         choices=("all", "reference"),

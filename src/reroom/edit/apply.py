@@ -43,6 +43,7 @@ import numpy as np
 import trimesh
 
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
+from reroom.edit.model import DEFAULT_MAX_DEPTH
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.jsonfile import read_json
@@ -527,7 +528,7 @@ def edited_scene(
     lights_dir: str | Path | None = None,
     layout_dir: str | Path | None = None,
     work_dir: str | Path | None = None,
-    max_depth: int = 8,
+    max_depth: int = DEFAULT_MAX_DEPTH,
 ) -> dict[str, Any]:
     """The Mitsuba scene dict (no sensor) of the recovered model with ``edits`` applied.
 

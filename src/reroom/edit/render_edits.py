@@ -23,6 +23,7 @@ import numpy as np
 
 from reroom.edit.apply import INSERT_PREFIX, edited_scene
 from reroom.edit.edits import EditError, as_ops, edit_document
+from reroom.edit.model import DEFAULT_MAX_DEPTH
 from reroom.errors import ScanError
 from reroom.hdr.exposures import load_exposures
 from reroom.io.atomic import atomic_write_json
@@ -168,7 +169,7 @@ def render_edit(
     lights_dir: str | Path | None = None,
     layout_dir: str | Path | None = None,
     work_dir: str | Path | None = None,
-    max_depth: int = 8,
+    max_depth: int = DEFAULT_MAX_DEPTH,
     exposure: Sequence[float] | float | None = None,
     resolution_scale: float = 1.0,
     seed: int = 0,
@@ -354,7 +355,7 @@ def composite_insertion(
     lights_dir: str | Path | None = None,
     layout_dir: str | Path | None = None,
     work_dir: str | Path | None = None,
-    max_depth: int = 8,
+    max_depth: int = DEFAULT_MAX_DEPTH,
     seed: int = 0,
     smooth_px: float = 1.5,
 ) -> dict[str, Any]:
@@ -465,7 +466,7 @@ def bake_edit(
     lights_dir: str | Path | None = None,
     layout_dir: str | Path | None = None,
     work_dir: str | Path | None = None,
-    max_depth: int = 8,
+    max_depth: int = DEFAULT_MAX_DEPTH,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Bake the edited model's per-vertex radiance; write ``<name>.ply`` and ``<name>.glb``.
