@@ -82,6 +82,12 @@ def test_subset_scan_remaps_vertices(tmp_path: Path):
     (scan / "lights" / "lights.json").write_text(
         json.dumps({"format": "reroom-lights", "n_vertices": n, "lights": []})
     )
+    # `reroom localize`'s own file: point lights alone, no per-vertex ids (n_vertices 0)
+    (scan / "localize").mkdir()
+    (scan / "localize" / "lights.json").write_text(
+        json.dumps({"format": "reroom-lights", "n_vertices": 0, "lights": []})
+    )
+    np.savez(scan / "localize" / "lights_vertices.npz", light_id=np.zeros(0, np.int32))
     (scan / "images" / "frame_00000.png").write_bytes(b"png")
     (scan / "transforms.json").write_text("{}")
     (scan / "ground_truth" / "scene" / "scene.json").write_text("{}")
@@ -113,6 +119,7 @@ def test_subset_scan_remaps_vertices(tmp_path: Path):
     assert np.array_equal(extras["best_frame"], old)
     assert json.loads((out / "lights" / "lights.json").read_text())["n_vertices"] == len(old)
     assert (out / "images").is_symlink() and (out / "transforms.json").is_symlink()
+    assert (out / "localize" / "lights.json").is_symlink()  # nothing per vertex in it
     assert (out / "ground_truth" / "scene").is_symlink()
     assert np.array_equal(
         read_ply(out / "ground_truth" / "vertices.ply").vertex_attributes["part"], old

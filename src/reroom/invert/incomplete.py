@@ -298,14 +298,18 @@ def subset_scan(
             done = _subset_npz(src, dst, n, old, new_of_old)
         elif src.name == "lights.json":
             d = json.loads(src.read_text())
-            if int(d.get("n_vertices", n)) != n:
+            have = int(d.get("n_vertices", n))
+            # 0: no per-vertex light ids (``reroom localize``'s file of point lights
+            # alone), nothing to subset, so it is linked as it is.
+            if have not in (n, 0):
                 raise ValueError(f"{src}: n_vertices {d.get('n_vertices')} != {n}")
-            d["n_vertices"] = int(len(old))
-            d.setdefault("notes", []).append(
-                f"subset of {src}: {len(old)} of {n} vertices kept (incompleteness experiment)"
-            )
-            atomic_write_json(dst, d)
-            done = True
+            if have == n:
+                d["n_vertices"] = int(len(old))
+                d.setdefault("notes", []).append(
+                    f"subset of {src}: {len(old)} of {n} vertices kept (incompleteness experiment)"
+                )
+                atomic_write_json(dst, d)
+                done = True
         elif src.name == "ground_truth.json":
             d = json.loads(src.read_text())
             d["vertices"], d["faces"] = int(len(old)), int(len(new_faces))
