@@ -187,3 +187,23 @@ def test_visible_area_of_an_unoccluded_tube(tmp_path: Path) -> None:
     # Without shadow rays both halves of the tube count: twice the projected width.
     w = visible_projected_area(src, np.array([0.0, 0.0, 0.0]), no_block, samples=20000)
     assert w == pytest.approx(2 * 2 * R, rel=0.03)
+
+
+def test_image_box_clips_at_the_camera_plane() -> None:
+    from reroom.render.glow import _image_box
+
+    intr = Intrinsics.from_fov(W, H, 60.0)
+    c2w = look_at(np.zeros(3), [0.0, 0.0, 1.0])  # looking up +z
+    small = np.array([[-0.05, -0.05, 2.0], [0.05, -0.05, 2.0], [0.0, 0.05, 2.0]])
+    x0, x1, y0, y1 = _image_box(small, np.array([[0, 1, 2]]), c2w, intr)
+    assert 0 < x0 < x1 < W and 0 < y0 < y1 < H and x1 - x0 < W // 4
+    behind = small * [1, 1, -1]
+    assert _image_box(behind, np.array([[0, 1, 2]]), c2w, intr) is None
+    # A triangle reaching behind the camera: its visible part runs off the image.
+    straddle = np.array([[0.0, 0.0, 2.0], [0.5, 0.0, -1.0], [0.0, 0.5, -1.0]])
+    box = _image_box(straddle, np.array([[0, 1, 2]]), c2w, intr)
+    assert box is not None and (box[0] == 0 or box[1] == W or box[2] == 0 or box[3] == H)
+    # Two glows, one behind and one off to the side: nothing to cast.
+    side = small + [10.0, 0.0, -1.9]
+    both = np.vstack([behind, side])
+    assert _image_box(both, np.array([[0, 1, 2], [3, 4, 5]]), c2w, intr) is None

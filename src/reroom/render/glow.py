@@ -292,15 +292,15 @@ def glow_layer(
         by_glow = caster.occluded(o, d, tmax=tmax, tmin=1e-4)
         return by_glow | (scene_t(o, d) < tmax)
 
+    # Rays only where the glows can show: the box of their faces' images.
+    boxes = [b for s in sources if (b := _image_box(s.vertices, s.faces, c2w, intr))]
+    if not boxes:
+        return glow, cover
+    x0, y0 = min(b[0] for b in boxes), min(b[2] for b in boxes)
+    x1, y1 = max(b[1] for b in boxes), max(b[3] for b in boxes)
     area = np.array(
         [visible_projected_area(s, eye, occluded, samples=samples, reach=reach) for s in sources]
     )
-
-    # Rays only where the glows can show: their faces' bounding box on the image.
-    box = _image_box(merged.vertices, c2w, intr)
-    if box is None:
-        return glow, cover
-    x0, x1, y0, y1 = box
     s = int(supersample)
     off = (np.arange(s) + 0.5) / s
     jj, ii = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
@@ -325,23 +325,36 @@ def glow_layer(
 
 
 def _image_box(
-    points: np.ndarray, c2w: np.ndarray, intr: Intrinsics
+    points: np.ndarray, faces: np.ndarray, c2w: np.ndarray, intr: Intrinsics, near: float = 1e-3
 ) -> tuple[int, int, int, int] | None:
-    """Pixel box ``(x0, x1, y0, y1)`` holding the projections of ``points`` (the whole
-    image when some lie behind the camera), or ``None`` when none can show."""
+    """Pixel box ``(x0, x1, y0, y1)`` holding the image of the triangles ``faces`` of
+    ``points``, or ``None`` when none can show.
+
+    The part of each triangle in front of the camera (depth > ``near``) is bounded by its
+    vertices there and the points where its edges cross that depth (which project far
+    out, so a triangle reaching behind the camera widens the box to the image's border).
+    """
     from reroom.scan.camera import GL_TO_CV
 
     w2c = np.linalg.inv(np.asarray(c2w, float))
     cam = (points @ w2c[:3, :3].T + w2c[:3, 3]) @ GL_TO_CV.T  # OpenCV: +z forward
-    if np.any(cam[:, 2] <= 1e-6):
-        if np.all(cam[:, 2] <= 1e-6):
-            return None
-        return 0, intr.width, 0, intr.height
-    x = intr.fx * cam[:, 0] / cam[:, 2] + intr.cx
-    y = intr.fy * cam[:, 1] / cam[:, 2] + intr.cy
-    # Two pixels of margin for lens distortion and the faces between the vertices.
-    x0, x1 = int(np.floor(x.min())) - 2, int(np.ceil(x.max())) + 2
-    y0, y1 = int(np.floor(y.min())) - 2, int(np.ceil(y.max())) + 2
+    front = cam[:, 2] > near
+    if not front.any():
+        return None
+    keep = [cam[front]]
+    if not front.all():
+        a = faces.reshape(-1)
+        b = np.roll(faces, -1, axis=1).reshape(-1)  # the three edges of every face
+        cross = front[a] != front[b]
+        pa, pb = cam[a[cross]], cam[b[cross]]
+        t = (near - pa[:, 2]) / (pb[:, 2] - pa[:, 2])
+        keep.append(pa + t[:, None] * (pb - pa))
+    pts = np.concatenate(keep)
+    x = intr.fx * pts[:, 0] / pts[:, 2] + intr.cx
+    y = intr.fy * pts[:, 1] / pts[:, 2] + intr.cy
+    # Two pixels of margin for lens distortion.
+    x0, x1 = int(np.floor(max(x.min(), -1e6))) - 2, int(np.ceil(min(x.max(), 1e6))) + 2
+    y0, y1 = int(np.floor(max(y.min(), -1e6))) - 2, int(np.ceil(min(y.max(), 1e6))) + 2
     x0, y0 = max(x0, 0), max(y0, 0)
     x1, y1 = min(x1, intr.width), min(y1, intr.height)
     if x0 >= x1 or y0 >= y1:
