@@ -696,8 +696,12 @@ def _refine_point_lights(
     names = list(CLUSTER_LABELS)
     ceiling = problem.cluster == names.index("ceiling")
     floor = problem.cluster == names.index("floor")
-    if ceiling.sum() >= 10:
-        hi[2] = min(hi[2], float(np.median(z[ceiling])) + options.refine_recess)
+    ceiling_z = float(np.median(z[ceiling])) if ceiling.sum() >= 10 else None
+    if ceiling_z is not None:
+        # Not clipped to the highest receiver: on a fused mesh that is the ceiling plane
+        # itself, and the recess would be lost (the 300-frame `furnished` scan's downlight
+        # then fell 0.19 m into the room instead).
+        hi[2] = ceiling_z + options.refine_recess
     if floor.sum() >= 10:
         lo[2] = max(lo[2], float(np.median(z[floor])) + 0.01)
     # Each trial position casts a shadow ray per receiver: a seeded subset keeps a
@@ -715,21 +719,45 @@ def _refine_point_lights(
         target = np.pi * problem.radiance / rho_safe - problem.indirect - (model - own)
         g = info[k]["geometry"]
         color = np.asarray(result.colors.get(block.name, np.ones(3) / np.sqrt(3)), float)
-        ref = refine_point_position(
-            caster,
-            p_recv[rows[use]],
-            n_recv[rows[use]],
-            target[use],
-            weight[use],
-            color,
-            np.asarray(g["position"], float),
-            np.asarray(g["axis"], float),
-            incl,
-            clearance=options.point_clearance,
-            max_shift=options.refine_max_shift,
-            bounds=(lo, hi),
-            free=(0, 1, 2) if options.refine_height else (0, 1),
-        )
+        start = np.asarray(g["position"], float)
+        trial_starts = [start]
+        if (
+            options.refine_height
+            and ceiling_z is not None
+            and options.refine_recess > 0
+            and abs(ceiling_z - start[2]) < options.refine_max_shift
+        ):
+            # A light at the ceiling hangs below it or sits in a can above its plane; the
+            # objective has a cliff at the plane (ceiling receivers stop facing the light),
+            # which a local search from one side does not cross: start on both sides.
+            trial_starts.append(
+                np.array([start[0], start[1], ceiling_z + options.refine_recess / 2])
+            )
+        ref = None
+        for s0 in trial_starts:
+            r = refine_point_position(
+                caster,
+                p_recv[rows[use]],
+                n_recv[rows[use]],
+                target[use],
+                weight[use],
+                color,
+                s0,
+                np.asarray(g["axis"], float),
+                incl,
+                clearance=options.point_clearance,
+                max_shift=options.refine_max_shift,
+                bounds=(lo, hi),
+                free=(0, 1, 2) if options.refine_height else (0, 1),
+            )
+            if np.linalg.norm(r.position - start) > options.refine_max_shift:
+                continue
+            if ref is None:
+                first_cost = r.cost_start
+            if ref is None or r.cost_end < ref.cost_end:
+                ref = r
+        ref.shift = float(np.linalg.norm(ref.position - start))
+        ref.cost_start = first_cost
         info[k]["refinement"] = {
             "shift_m": ref.shift,
             "cost_start": ref.cost_start,
