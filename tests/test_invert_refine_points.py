@@ -90,3 +90,26 @@ def test_refinement_across_the_room_keeps_the_height() -> None:
     )  # fmt: skip
     assert ref.position[2] == start[2]
     assert np.linalg.norm(ref.position - truth) < 0.01
+
+
+def test_extra_starts_keep_the_best_place() -> None:
+    """More starts never end worse, and one in the right basin is taken."""
+    caster, p, n = _room()
+    basis = InclinationBasis(32)
+    truth = np.array([2.2, 1.4, 2.3])
+    color = np.ones(3) / np.sqrt(3)
+    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
+    target = (f @ _lamp_profile(basis))[:, None] * color[None, :]
+    start = truth + np.array([0.2, -0.1, -0.15])
+    kw = dict(clearance=0.05, max_shift=0.3, max_evaluations=15)
+    one = refine_point_position(
+        caster, p, n, target, np.ones_like(target), color, start, [0, 0, 1], basis, **kw
+    )
+    two = refine_point_position(
+        caster, p, n, target, np.ones_like(target), color, start, [0, 0, 1], basis, **kw,
+        extra_starts=(truth + 0.004,),
+    )  # fmt: skip
+    assert two.cost_end <= one.cost_end
+    assert np.linalg.norm(two.position - truth) < 0.01
+    assert two.cost_start == one.cost_start  # measured at the given position either way
+    assert two.evaluations > one.evaluations

@@ -720,7 +720,7 @@ def _refine_point_lights(
         g = info[k]["geometry"]
         color = np.asarray(result.colors.get(block.name, np.ones(3) / np.sqrt(3)), float)
         start = np.asarray(g["position"], float)
-        trial_starts = [start]
+        extra = ()
         if (
             options.refine_height
             and ceiling_z is not None
@@ -730,34 +730,23 @@ def _refine_point_lights(
             # A light at the ceiling hangs below it or sits in a can above its plane; the
             # objective has a cliff at the plane (ceiling receivers stop facing the light),
             # which a local search from one side does not cross: start on both sides.
-            trial_starts.append(
-                np.array([start[0], start[1], ceiling_z + options.refine_recess / 2])
-            )
-        ref = None
-        for s0 in trial_starts:
-            r = refine_point_position(
-                caster,
-                p_recv[rows[use]],
-                n_recv[rows[use]],
-                target[use],
-                weight[use],
-                color,
-                s0,
-                np.asarray(g["axis"], float),
-                incl,
-                clearance=options.point_clearance,
-                max_shift=options.refine_max_shift,
-                bounds=(lo, hi),
-                free=(0, 1, 2) if options.refine_height else (0, 1),
-            )
-            if np.linalg.norm(r.position - start) > options.refine_max_shift:
-                continue
-            if ref is None:
-                first_cost = r.cost_start
-            if ref is None or r.cost_end < ref.cost_end:
-                ref = r
-        ref.shift = float(np.linalg.norm(ref.position - start))
-        ref.cost_start = first_cost
+            extra = (np.array([start[0], start[1], ceiling_z + options.refine_recess / 2]),)
+        ref = refine_point_position(
+            caster,
+            p_recv[rows[use]],
+            n_recv[rows[use]],
+            target[use],
+            weight[use],
+            color,
+            start,
+            np.asarray(g["axis"], float),
+            incl,
+            clearance=options.point_clearance,
+            max_shift=options.refine_max_shift,
+            bounds=(lo, hi),
+            free=(0, 1, 2) if options.refine_height else (0, 1),
+            extra_starts=extra,
+        )
         info[k]["refinement"] = {
             "shift_m": ref.shift,
             "cost_start": ref.cost_start,

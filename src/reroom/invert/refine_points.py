@@ -101,6 +101,7 @@ def refine_point_position(
     smooth: float = 1e-3,
     max_evaluations: int = 120,
     free: tuple[int, ...] = (0, 1, 2),
+    extra_starts: tuple[np.ndarray, ...] = (),
 ) -> PointRefinement:
     """Move one point light to where its share of the solved lighting fits best.
 
@@ -133,6 +134,11 @@ def refine_point_position(
     free:
         The coordinates that may change (``(0, 1)``: only across the room, the height
         kept).
+    extra_starts:
+        More places to start the search from (each still within ``max_shift`` of
+        ``position``); the lowest cost found wins. The objective can have a cliff a
+        local search does not cross (a ceiling light: below the ceiling plane or in its
+        can above it).
     """
     x0 = np.asarray(position, dtype=np.float64).reshape(3)
     ax = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -168,21 +174,22 @@ def refine_point_position(
     if not np.isfinite(start) or len(p) < basis.size:
         return PointRefinement(x0, 0.0, start, start, len(seen))
     step = min(0.05, max_shift / 2)
-    y0 = x0[axes]
-    simplex = np.vstack([y0, y0 + step * np.eye(len(axes))])
-    sol = scipy.optimize.minimize(
-        lambda y: cost(full(y)),
-        y0,
-        method="Nelder-Mead",
-        options={
-            "initial_simplex": simplex,
-            "xatol": 0.002,
-            "fatol": 1e-6 * start,
-            "maxfev": max_evaluations,
-        },
-    )
-    best = full(np.asarray(sol.x, dtype=np.float64))
-    end = cost(best)
-    if not end < start:
-        best, end = x0, start
+    best, end = x0, start
+    for s0 in (x0, *(np.asarray(e, dtype=np.float64).reshape(3) for e in extra_starts)):
+        y0 = s0[axes]
+        simplex = np.vstack([y0, y0 + step * np.eye(len(axes))])
+        sol = scipy.optimize.minimize(
+            lambda y: cost(full(y)),
+            y0,
+            method="Nelder-Mead",
+            options={
+                "initial_simplex": simplex,
+                "xatol": 0.002,
+                "fatol": 1e-6 * start,
+                "maxfev": max_evaluations,
+            },
+        )
+        x = full(np.asarray(sol.x, dtype=np.float64))
+        if cost(x) < end:
+            best, end = x, cost(x)
     return PointRefinement(best, float(np.linalg.norm(best - x0)), start, end, len(seen))
