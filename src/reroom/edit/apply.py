@@ -43,7 +43,7 @@ import numpy as np
 import trimesh
 
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
-from reroom.edit.model import DEFAULT_MAX_DEPTH
+from reroom.edit.model import DEFAULT_MAX_DEPTH, segment_distance
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.jsonfile import read_json
@@ -379,12 +379,6 @@ def _face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out
 
 
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ab = b - a
-    t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
-
-
 def _fixture_faces(
     model: RoomModel, emitting: np.ndarray, lights: list[dict[str, Any]] | None = None
 ) -> np.ndarray:
@@ -413,7 +407,7 @@ def _fixture_faces(
             )
         elif light["type"] == "line":
             near |= (
-                _segment_distance(v, np.asarray(geo["p0"], float), np.asarray(geo["p1"], float))
+                segment_distance(v, np.asarray(geo["p0"], float), np.asarray(geo["p1"], float))
                 < _FIXTURE_NEAR_LINE
             )
     return _grown_pieces(model, emitting, near, grow=True)

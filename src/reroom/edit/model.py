@@ -256,6 +256,13 @@ def model_scene(
     return scene
 
 
+def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of each point of ``p`` ``(N, 3)`` to the segment ``a``-``b``."""
+    ab = b - a
+    t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
 def _add_glows(
     scene: dict[str, Any],
     lights: list[dict[str, Any]],
@@ -280,9 +287,7 @@ def _add_glows(
             centres.append(c)
         elif light["type"] == "line":
             a, b = np.asarray(geo["p0"], float), np.asarray(geo["p1"], float)
-            ab = b - a
-            t = np.clip(((centroid - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-            dist.append(np.linalg.norm(centroid - (a + t[:, None] * ab), axis=1))
+            dist.append(segment_distance(centroid, a, b))
             centres.append((a + b) / 2.0)
         else:
             dist.append(np.full(len(idx), np.inf))

@@ -301,6 +301,7 @@ def object_mask(
     import trimesh
 
     from reroom.rays import RayCaster
+    from reroom.render.camera import subpixel_positions
     from reroom.scan.camera import Frame
 
     parts = _shape_meshes(scene)
@@ -313,14 +314,8 @@ def object_mask(
     )
     caster = RayCaster(combined)
     s = int(supersample)
-    off = (np.arange(s) + 0.5) / s
-    jj, ii = np.meshgrid(np.arange(intr.width), np.arange(intr.height))
-    uv = (
-        np.stack([jj, ii], -1)[:, :, None, None, :]
-        + np.stack(np.meshgrid(off, off, indexing="xy"), -1)[None, None]
-    ).reshape(-1, 2)
     frame = Frame(index=0, c2w=np.asarray(c2w, float), intrinsics=intr, image_path=Path("-"))
-    o, d = frame.pixel_rays(uv)
+    o, d = frame.pixel_rays(subpixel_positions(0, intr.width, 0, intr.height, s))
     hits = caster.intersect(o, d)
     obj = hits.hit & owner[np.maximum(hits.face, 0)]
     return obj.reshape(intr.height, intr.width, s * s).mean(-1)

@@ -65,3 +65,19 @@ def perspective_sensor(
         },
         "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(seed)},
     }
+
+
+def subpixel_positions(x0: int, x1: int, y0: int, y1: int, supersample: int) -> np.ndarray:
+    """``(N, 2)`` image positions of an ``s x s`` grid in every pixel of a box.
+
+    Pixels ``x0 <= x < x1``, ``y0 <= y < y1`` in row-major order, each pixel's ``s * s``
+    points together (row-major in the pixel), so a result reshapes to ``(y1 - y0, x1 -
+    x0, s * s)``. Pixel ``(x, y)`` covers ``[x, x + 1) x [y, y + 1)``.
+    """
+    s = int(supersample)
+    off = (np.arange(s) + 0.5) / s
+    jj, ii = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
+    return (
+        np.stack([jj, ii], -1)[:, :, None, None, :]
+        + np.stack(np.meshgrid(off, off, indexing="xy"), -1)[None, None]
+    ).reshape(-1, 2)

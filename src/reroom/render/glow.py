@@ -269,6 +269,7 @@ def glow_layer(
     import trimesh
 
     from reroom.rays import RayCaster
+    from reroom.render.camera import subpixel_positions
     from reroom.scan.camera import Frame
 
     h, w = intr.height, intr.width
@@ -302,13 +303,7 @@ def glow_layer(
         [visible_projected_area(s, eye, occluded, samples=samples, reach=reach) for s in sources]
     )
     s = int(supersample)
-    off = (np.arange(s) + 0.5) / s
-    jj, ii = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
-    uv = (
-        np.stack([jj, ii], -1)[:, :, None, None, :]
-        + np.stack(np.meshgrid(off, off, indexing="xy"), -1)[None, None]
-    ).reshape(-1, 2)
-    o, d = frame.pixel_rays(uv)
+    o, d = frame.pixel_rays(subpixel_positions(x0, x1, y0, y1, s))
     hits = caster.intersect(o, d)
     seen = hits.hit & (hits.t < scene_t(o, d))
     value = np.zeros((len(d), 3))
