@@ -207,3 +207,21 @@ def test_image_box_clips_at_the_camera_plane() -> None:
     side = small + [10.0, 0.0, -1.9]
     both = np.vstack([behind, side])
     assert _image_box(both, np.array([[0, 1, 2], [3, 4, 5]]), c2w, intr) is None
+
+
+def test_glow_bad_input(tmp_path: Path) -> None:
+    from reroom.errors import ScanError
+
+    scene = _scene(tmp_path)
+    scene["glow_00"]["filename"] = str(tmp_path / "gone.ply")
+    rest, glows = split_glow(scene)
+    with pytest.raises(ScanError, match="gone.ply"):
+        glow_sources(rest, glows)
+    with pytest.raises(ValueError, match="point or line"):
+        light_intensity({"type": "area"}, np.array([[0.0, 0.0, -1.0]]))
+    # Degenerate (zero-area) glowing faces show nothing and break nothing.
+    flat = trimesh.Trimesh([[0, 0, Z], [0.1, 0, Z], [0.2, 0, Z]], [[0, 1, 2]], process=False)
+    scene = _scene(tmp_path / "flat")
+    scene["glow_00"]["filename"] = str(write_ply(tmp_path / "flat.ply", flat, {}))
+    img = _render(scene, look_at(EYE, [0.0, 0.0, Z]))
+    assert np.isfinite(img).all() and img.max() < 1.0
