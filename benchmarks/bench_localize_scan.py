@@ -106,6 +106,11 @@ def main() -> None:
         help="a light inside a fitting takes the lowest-cost height too",
     )
     ap.add_argument(
+        "--no-enclosed-axis",
+        action="store_true",
+        help="heights inside a fitting are not also tried on its axis",
+    )
+    ap.add_argument(
         "--profile-gain", type=float, default=0.2, help="goniometric test threshold (1: off)"
     )
     ap.add_argument(
@@ -133,6 +138,7 @@ def main() -> None:
         mount_unsupported=not args.no_mount_unsupported,
         mount_shift=args.mount_shift,
         keep_enclosed=not args.no_keep_enclosed,
+        enclosed_axis=not args.no_enclosed_axis,
         profile_gain=args.profile_gain,
         height_bins=args.height_bins,
         mount_test=not args.no_mount_test,

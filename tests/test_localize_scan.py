@@ -26,6 +26,7 @@ from reroom.localize.scan import (
     ScanLocalizeResult,
     _discovery_gain,
     _enclosed,
+    _fitting_axis,
     _floating,
     _mount_test,
     _Problem,
@@ -280,6 +281,29 @@ def test_enclosed_by_a_shade_not_by_a_pole_beside():
     assert not _enclosed(verts, labels, np.array([2.15, 1.5, 0.8]), 0.3)
     assert not _enclosed(verts, labels, np.array([2.0, 1.5, 2.2]), 0.3)
     assert not _enclosed(verts, np.zeros(len(verts), int), np.array([2.05, 1.5, 1.5]), 0.3)
+
+
+def test_fitting_axis_is_the_shade_centre_seen_from_one_side():
+    # A frustum shade (radius 0.22 m at 1.36 m to 0.14 m at 1.64 m) in a corner: the scan
+    # shows 3/4 of it, so the mean of its vertices is off its axis; a pole under it.
+    rng = np.random.default_rng(3)
+    t = rng.uniform(0.0, 1.5 * np.pi, 600)
+    z = rng.uniform(1.36, 1.64, 600)
+    r = 0.22 - 0.08 * (z - 1.36) / 0.28 + rng.normal(0.0, 0.003, 600)
+    shade = np.column_stack([r * np.cos(t), r * np.sin(t), z])
+    pole = np.column_stack([np.zeros(14), np.zeros(14), np.linspace(0.0, 1.36, 14)])
+    centre = np.array([0.55, 0.55])
+    verts = np.vstack([shade, pole]) + [*centre, 0.0]
+    labels = np.full(len(verts), 255)
+    p = np.array([0.59, 0.52, 1.50])  # 5 cm off the axis, inside the shade
+    axis = _fitting_axis(verts, labels, p, 0.3)
+    near = (np.abs(verts[:, 2] - 1.5) < 0.1) & (np.linalg.norm(verts[:, :2] - p[:2], axis=1) < 0.3)
+    assert np.linalg.norm(verts[near, :2].mean(axis=0) - centre) > 0.03  # the mean is off
+    assert axis is not None and np.linalg.norm(axis - centre) < 0.005, axis
+    # Not inside a fitting: beside the pole, far above the shade, or the shade is a wall.
+    assert _fitting_axis(verts, labels, np.array([0.65, 0.55, 0.8]), 0.3) is None
+    assert _fitting_axis(verts, labels, np.array([0.55, 0.55, 2.3]), 0.3) is None
+    assert _fitting_axis(verts, np.zeros(len(verts), int), p, 0.3) is None
 
 
 def test_downward_light_lights_only_what_is_below_it():
