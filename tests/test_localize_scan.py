@@ -306,6 +306,64 @@ def test_fitting_axis_is_the_shade_centre_seen_from_one_side():
     assert _fitting_axis(verts, np.zeros(len(verts), int), p, 0.3) is None
 
 
+def _shade_problem():
+    """A 4 x 3 x 2.5 m room, a lamp shade open at both ends (as ``furnished``'s) around
+    an isotropic bulb at (2, 1.5, 1.5); receivers on the ceiling and floor see only
+    the bulb's direct light, through the shade's openings."""
+    from reroom.synth.geometry import frustum_shell
+
+    room = trimesh.creation.box(extents=SIZE)
+    room.apply_translation(SIZE / 2)
+    shade = frustum_shell([2.0, 1.5, 1.36], 0.22, 0.14, 0.28, 0.006, sections=40, rings=5)
+    mesh = trimesh.util.concatenate(
+        [room, trimesh.Trimesh(shade.vertices, shade.faces, process=False)]
+    )
+    xs, ys = np.meshgrid(np.arange(0.05, 4.0, 0.1), np.arange(0.05, 3.0, 0.1), indexing="ij")
+    xy = np.column_stack([xs.ravel(), ys.ravel()])
+    pts = np.vstack([np.column_stack([xy, np.full(len(xy), 2.5)]),
+                     np.column_stack([xy, np.zeros(len(xy))])])  # fmt: skip
+    nrm = np.vstack(
+        [np.tile([0.0, 0.0, -1.0], (len(xy), 1)), np.tile([0.0, 0.0, 1.0], (len(xy), 1))]
+    )
+    caster = RayCaster(mesh)
+    bulb = np.array([[2.0, 1.5, 1.5]])
+    vis = caster.visibility_matrix(pts, nrm, bulb)
+    n = len(pts)
+    pil = 2.0 * shading_matrix(pts, nrm, bulb, vis)[:, 0]
+    prob = _Problem(
+        pts, nrm, pil, np.zeros(n), np.zeros(n, int), [0], np.zeros((n, 0)), [], caster, 1.0
+    )
+    labels = np.r_[
+        np.where(np.asarray(room.vertices)[:, 2] < 1.0, 1, 2), np.full(len(shade.vertices), 255)
+    ]
+    layout = {
+        "rooms": [{"polygon": [[0, 0], [4, 0], [4, 3], [0, 3]], "floor_z": 0.0, "ceiling_z": 2.5}]
+    }
+    return prob, np.asarray(mesh.vertices), labels, layout
+
+
+def test_goniometric_height_inside_a_shade_is_found_on_its_axis():
+    from reroom.localize.scan import _goniometric_test
+
+    prob, verts, labels, layout = _shade_problem()
+    start = np.array([[2.04, 1.53, 0.9]])  # the search's isotropic fit: under the shade, off axis
+    box = (np.zeros(3), SIZE.astype(float))
+    found = {}
+    for axis in (True, False):
+        opt = ScanLocalizeOptions(enclosed_axis=axis, profile_gain=0.0)
+        out = _goniometric_test(
+            prob, start, np.array([1.0]), np.array([1.0]), box, layout, opt, verts, labels
+        )
+        assert out[0] is not None
+        found[axis] = np.asarray(out[0]["position"])
+    # On the shade's axis, at the bulb's height (tested every 0.05 m).
+    assert np.linalg.norm(found[True][:2] - [2.0, 1.5]) < 0.005, found
+    assert abs(found[True][2] - 1.5) < 0.03, found
+    # Without it the vertical stays 5 cm off the axis, and the height is not the bulb's.
+    assert np.linalg.norm(found[False][:2] - [2.0, 1.5]) > 0.04, found
+    assert abs(found[False][2] - 1.5) > 0.03, found
+
+
 def test_downward_light_lights_only_what_is_below_it():
     room = trimesh.creation.box(extents=SIZE)
     room.apply_translation(SIZE / 2)
