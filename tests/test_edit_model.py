@@ -241,3 +241,14 @@ def test_glowing_faces_go_to_their_light(tmp_path: Path) -> None:
     room = read_ply(rest["room"]["filename"])
     ceiling_glow = (light[: len(v)][f].sum(axis=1) >= 2).sum()
     assert ceiling_glow > 0 and len(room.faces) == len(f) - ceiling_glow
+
+
+def test_spread_frames_takes_the_middles_not_the_ends():
+    from reroom.edit.rerender import spread_frames
+
+    # An orbit's first and last frames show the same view: neither is taken for two.
+    assert spread_frames(list(range(300)), 2) == [75, 225]
+    assert spread_frames(list(range(300)), 1) == [150]
+    assert spread_frames([3, 5, 9], 4) == [3, 5, 9]  # never more than there are
+    assert spread_frames([3, 5, 9, 11], 2) == [5, 11]
+    assert spread_frames([7], 0) == [7]

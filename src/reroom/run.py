@@ -33,8 +33,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.runner import RECORD_NAME, Stage, StageResult, run_stages
@@ -71,7 +69,7 @@ class RunOptions:
         An edit file (``{"format": "reroom-edits", "version": 1, "edits": [...]}``)
         rendered as one more edit set, named after the file.
     frames_to_render:
-        Input frames (evenly spread over those with an exposure) that the re-render and
+        Input frames (spread over those with an exposure: the middles of equal stretches) that the re-render and
         the edit renders are made from.
     spp:
         Path-tracing samples per pixel of the re-renders and edit renders.
@@ -232,7 +230,8 @@ def _folder_files(folder: Path) -> list[Path]:
 
 
 def render_frames(run: Path, count: int) -> list[int]:
-    """``count`` frame indices evenly spread over the frames the HDR stage gave an exposure."""
+    """``count`` frame indices spread over the frames the HDR stage gave an exposure
+    (:func:`reroom.edit.rerender.spread_frames`)."""
     path = run / "hdr" / "exposures.json"
     try:
         doc = json.loads(path.read_text())
@@ -241,9 +240,10 @@ def render_frames(run: Path, count: int) -> list[int]:
     usable = [j for j, f in enumerate(doc.get("frames", [])) if f.get("scale") is not None]
     if not usable:
         raise ScanError(path, "gives no frame an exposure: nothing to render at")
-    n = max(1, min(count, len(usable)))
+    from reroom.edit.rerender import spread_frames
+
     # The same choice as reroom.edit.rerender_inputs, so edits and re-renders share frames.
-    return [usable[int(i)] for i in np.linspace(0, len(usable) - 1, n)]
+    return spread_frames(usable, count)
 
 
 def _safe_name(name: str) -> str:

@@ -106,8 +106,9 @@ def _views(
         range(len(scan.frames))
     )
     if frames is None and cameras is None:
-        pick = np.linspace(0, len(usable) - 1, min(4, len(usable)))
-        frames = [usable[int(round(i))] for i in pick]
+        from reroom.edit.rerender import spread_frames
+
+        frames = spread_frames(usable, 4)
     views = []
     for j in frames or []:
         if not 0 <= int(j) < len(scan.frames):
@@ -188,7 +189,8 @@ def render_edit(
         Output folder (created).
     frames:
         Input frame indices: each is rendered with that frame's pose, intrinsics and
-        exposure ``t_j``. Default (with no ``cameras`` either): 4 frames evenly spread.
+        exposure ``t_j``. Default (with no ``cameras`` either): 4 frames spread over the capture
+        (:func:`reroom.edit.rerender.spread_frames`).
     cameras:
         New cameras, transforms.json style: ``transform_matrix`` (4x4 camera-to-world,
         OpenGL axes), ``fl_x, fl_y, cx, cy, w, h`` (missing ones: the first frame's),

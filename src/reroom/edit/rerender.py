@@ -20,7 +20,20 @@ from reroom.errors import ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.images import write_rgb8
 
-__all__ = ["rerender_inputs"]
+__all__ = ["rerender_inputs", "spread_frames"]
+
+
+def spread_frames(usable: list[int], count: int) -> list[int]:
+    """``count`` of the frame indices ``usable``, one from the middle of each of ``count``
+    equal stretches of the capture.
+
+    Not the first and the last frame: a capture that walks round the room ends where it
+    started (the synthetic scans' orbit does), so those two show the same view; the
+    middles of the stretches look at different parts of the room on a loop and on a
+    sweep alike.
+    """
+    n = max(1, min(int(count), len(usable)))
+    return [usable[int((k + 0.5) * len(usable) / n)] for k in range(n)]
 
 
 def _encode(linear: np.ndarray, gamma: float = 2.2) -> np.ndarray:
@@ -36,7 +49,7 @@ def rerender_inputs(
     unit_scale: np.ndarray | float = 1.0,
     out_dir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Render ``frames`` input frames (evenly spread) from the model; write a comparison.
+    """Render ``frames`` input frames (:func:`spread_frames`) from the model; write a comparison.
 
     Parameters
     ----------
@@ -77,7 +90,7 @@ def rerender_inputs(
         raise ScanError(
             scan_dir / "hdr" / "exposures.json", "gives no frame an exposure: nothing to render at"
         )
-    pick = [usable[int(i)] for i in np.linspace(0, len(usable) - 1, min(frames, len(usable)))]
+    pick = spread_frames(usable, frames)
     renderer: FrameRenderer | None = None
     rows, per_frame = [], []
     scale = np.broadcast_to(np.asarray(unit_scale, float), (3,))
