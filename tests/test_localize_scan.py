@@ -175,6 +175,23 @@ def test_merge_replaces_detected_and_keeps_user_lights(localized, room_scan: Pat
     assert [x.name for x in back.lights] == names
 
 
+def test_merge_keeps_a_place_measured_from_the_pool_edge(localized):
+    res, info = localized
+    measured = res.positions[0] + [0.02, 0.0, -0.12]  # e.g. inside a shade, under the rim
+    lamp = _point("point0", measured, "detected")
+    lamp.evidence.update(height_from="pool edge", pool_edge_radius_m=1.15, edge_sectors=5)
+    lights = LightSet(lights=[lamp], vertex_light_id=np.full(3, -1, np.int32))
+    done = merge_localized_lights(lights, res, info)
+    kept = lights.lights[0]
+    assert kept.source == "localize" and kept.name == "point0"
+    np.testing.assert_allclose(kept.anchor(), measured, atol=1e-9)
+    np.testing.assert_allclose(kept.evidence["localized_position"], res.positions[0])
+    assert kept.evidence["height_from"] == "pool edge" and "kept at" in done[0]
+    # Merging again (a second `reroom localize`) keeps it there too.
+    merge_localized_lights(lights, res, info)
+    np.testing.assert_allclose(lights.lights[0].anchor(), measured, atol=1e-9)
+
+
 def _mount_case(
     profile_up: bool = False,
     pendant: bool = False,

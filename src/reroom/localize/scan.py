@@ -1196,6 +1196,17 @@ def _localized_light(name: str, p: np.ndarray, it: float, info: dict):
     )
 
 
+#: Evidence of a light placed from its pool's edge that a merge carries over.
+_POOL_EDGE_KEYS = (
+    "height_from",
+    "opening_radius_m",
+    "pool_edge_radius_m",
+    "edge_sectors",
+    "pool",
+    "object_top_m",
+)
+
+
 def merge_localized_lights(
     lights, res: ScanLocalizeResult, info: dict, match_distance: float = 0.5
 ) -> list[str]:
@@ -1204,7 +1215,10 @@ def merge_localized_lights(
     A point light already in ``lights`` within ``match_distance`` of a localized one (a
     detected guess, or an earlier localization) is replaced in place (its name and index
     kept, so ``vertex_light_id`` stays valid); the others are appended as ``localizedK``.
-    User-placed point lights are never replaced. Returns what was done, in words.
+    A light whose place ``reroom lights`` measured from its ceiling pool's edge
+    (``evidence["height_from"] == "pool edge"``) keeps that place and takes the rest
+    from the localization. User-placed point lights are never replaced. Returns what was
+    done, in words.
     """
     done = []
     points = [i for i, x in enumerate(lights.lights) if x.type == "point" and x.source != "user"]
@@ -1219,16 +1233,35 @@ def merge_localized_lights(
                 best, best_d = i, d
         if best is not None:
             old = lights.lights[best]
-            new = _localized_light(old.name, p, it, info)
+            # A bulb in an open-topped shade placed from its pool's edge (reroom lights,
+            # bulb_from_pool_edge) keeps that place: the edge is pure geometry, while the
+            # fit here depends on the mesh's occlusion by the shade, which a fused scan
+            # gets wrong (docs/localize.md, "Session 8").
+            measured = old.evidence.get("height_from") == "pool edge"
+            q = np.asarray(old.anchor(), float) if measured else p
+            new = _localized_light(old.name, q, it, info)
             new.evidence["replaces"] = {
                 "position": old.geometry.get("position"),
                 "reason": old.reason,
             }
+            if measured:
+                for key in _POOL_EDGE_KEYS:
+                    if key in old.evidence:
+                        new.evidence[key] = old.evidence[key]
+                new.evidence["localized_position"] = [float(c) for c in p]
             lights.lights[best] = new
             used.add(best)
-            done.append(
-                f"{old.name}: moved {best_d:.2f} m to {np.round(p, 2).tolist()} ({LOCALIZED_REASON})"
-            )
+            if measured:
+                done.append(
+                    f"{old.name}: kept at {np.round(q, 2).tolist()}, its place measured from "
+                    f"its pool's edge (localization found it {best_d:.2f} m away, at "
+                    f"{np.round(p, 2).tolist()}; {LOCALIZED_REASON})"
+                )
+            else:
+                done.append(
+                    f"{old.name}: moved {best_d:.2f} m to {np.round(p, 2).tolist()} "
+                    f"({LOCALIZED_REASON})"
+                )
         else:
             while f"localized{k}" in taken:
                 k += 1

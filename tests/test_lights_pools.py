@@ -1,0 +1,50 @@
+"""The bulb inside an open-topped shade, placed from the pool its opening casts."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from reroom.lights.pools import bulb_from_pool_edge
+
+CEILING_Z = 2.7
+
+
+def _lamp(bulb_z: float, axis=(0.55, 0.55), r_open: float = 0.14, top: float = 1.64, seed=0):
+    """A ceiling seen in a corner room (walls at x = 0 and y = 0, 6 x 4.5 m), lit by a
+    bulb on the axis of a shade whose top opening has radius ``r_open`` at ``top``."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform([0.0, 0.0], [6.0, 4.5], (9000, 2))
+    ceiling = np.column_stack([xy, np.full(len(xy), CEILING_Z)])
+    r = np.linalg.norm(xy - axis, axis=1)
+    h = CEILING_Z - bulb_z
+    edge = r_open * h / (top - bulb_z)
+    cos = h / np.sqrt(h * h + r * r)
+    lum = 0.2 + np.where(r < edge, 4.0 * cos**3 / h**2, 0.0)  # direct inside, dim beyond
+    lum *= rng.normal(1.0, 0.03, len(lum))  # photo noise
+    t = rng.uniform(0.0, 2.0 * np.pi, 400)
+    z = rng.uniform(top - 0.28, top, 400)
+    rad = r_open + 0.08 * (top - z) / 0.28
+    body = np.column_stack([axis[0] + rad * np.cos(t), axis[1] + rad * np.sin(t), z])
+    return ceiling, lum, body, top, edge
+
+
+def test_bulb_height_from_the_pool_edge():
+    for bulb_z in (1.50, 1.45, 1.55):
+        ceiling, lum, body, top, edge = _lamp(bulb_z)
+        out = bulb_from_pool_edge(ceiling, lum, body, top, CEILING_Z)
+        assert out is not None, bulb_z
+        # The walls cut the pool short towards the corner; the other directions see its edge.
+        assert out["edge_sectors"] >= 3
+        assert abs(out["pool_edge_radius_m"] - edge) < 0.06, (out, edge)
+        assert abs(out["opening_radius_m"] - 0.14) < 0.01  # the 4 cm band of a sloped shade
+        np.testing.assert_allclose(out["position"][:2], [0.55, 0.55], atol=0.005)
+        assert abs(out["position"][2] - bulb_z) < 0.02, (bulb_z, out)
+
+
+def test_no_edge_no_place():
+    ceiling, lum, body, top, _ = _lamp(1.5)
+    # A ceiling lit evenly (no pool edge): nothing to measure.
+    flat = np.full(len(lum), 1.0)
+    assert bulb_from_pool_edge(ceiling, flat, body, top, CEILING_Z) is None
+    # No rim under the pool.
+    assert bulb_from_pool_edge(ceiling, lum, body[:5], top, CEILING_Z) is None
