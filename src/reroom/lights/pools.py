@@ -22,7 +22,7 @@ from reroom.lights.room import CEILING, FLOOR, OTHER, RoomModel
 if TYPE_CHECKING:
     from reroom.lights.detect import LightsOptions
 
-__all__ = ["MeshData", "find_pools"]
+__all__ = ["MeshData", "bulb_from_pool_edge", "find_pools", "fit_circle"]
 
 
 @dataclass
@@ -238,11 +238,7 @@ def bulb_from_pool_edge(
     rim = body[body[:, 2] > top - 0.04]
     if len(rim) < 10:
         return None
-    x, y = rim[:, 0], rim[:, 1]
-    a = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
-    sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
-    axis = sol[:2]
-    r_open = float(np.sqrt(max(sol[2] + axis @ axis, 0.0)))
+    axis, r_open = fit_circle(rim[:, :2])
     if (
         not np.isfinite(r_open)
         or r_open <= 0.01
@@ -296,3 +292,17 @@ def bulb_from_pool_edge(
         "edge_sectors": len(agree),
         "height_from": "pool edge",
     }
+
+
+def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre ``(2,)`` and radius of the circle through 2D points, least squares.
+
+    Kasa's algebraic fit (``x^2 + y^2 = 2 a x + 2 b y + c``, linear): unlike the points'
+    mean, it finds the centre of an arc, e.g. a lamp shade in a corner that the scan
+    shows on one side only.
+    """
+    x, y = xy[:, 0], xy[:, 1]
+    a = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
+    sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
+    centre = sol[:2]
+    return centre, float(np.sqrt(max(sol[2] + centre @ centre, 0.0)))

@@ -1042,10 +1042,9 @@ def _fitting_axis(
     )
     if ring.sum() < 10:
         return None
-    x, y = verts[ring, 0], verts[ring, 1]
-    a = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
-    sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
-    centre = sol[:2]
+    from reroom.lights.pools import fit_circle
+
+    centre, _ = fit_circle(verts[ring, :2])
     if not np.isfinite(centre).all() or np.linalg.norm(centre - p[:2]) > radius:
         return None
     return centre
