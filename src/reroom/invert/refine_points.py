@@ -190,6 +190,7 @@ def refine_point_position(
             },
         )
         x = full(np.asarray(sol.x, dtype=np.float64))
-        if cost(x) < end:
-            best, end = x, cost(x)
+        c = cost(x)
+        if c < end:
+            best, end = x, c
     return PointRefinement(best, float(np.linalg.norm(best - x0)), start, end, len(seen))

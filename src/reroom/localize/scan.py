@@ -929,12 +929,17 @@ def _goniometric_test(
             [np.full_like(heights, pos[k, 0]), np.full_like(heights, pos[k, 1]), heights]
         )
         cands = cands[_room_mask(cands, layout, margin_floor=0.1)]
-        costs, coarse, profiles = [], [], []
-        for i, c in enumerate(cands):
-            f = point_light_transfer(prob.caster, p_n, n_n, c, [0.0, 0.0, 1.0], basis)
+
+        def fit_at(q, base=base, b=b, p_n=p_n, n_n=n_n):
+            """Soft-L1 cost, transfer and coefficients of a goniometric light at ``q``."""
+            f = point_light_transfer(prob.caster, p_n, n_n, q, [0.0, 0.0, 1.0], basis)
             a = np.hstack([base, f])
             coef = _nonneg_fit(a, b)
-            cost = _soft_cost(b - a @ coef, scale)
+            return _soft_cost(b - a @ coef, scale), f, coef
+
+        costs, coarse, profiles = [], [], []
+        for i, c in enumerate(cands):
+            cost, f, coef = fit_at(c)
             axis = None
             if opt.enclosed_axis and verts is not None and vert_labels is not None:
                 axis = _fitting_axis(verts, vert_labels, c, opt.mount_radius)
@@ -943,12 +948,10 @@ def _goniometric_test(
                 # throw over the aperture's distance (~10x) times any horizontal error,
                 # so the fit there is only good on the fitting's axis. Try it too.
                 q = np.array([axis[0], axis[1], c[2]])
-                f_q = point_light_transfer(prob.caster, p_n, n_n, q, [0.0, 0.0, 1.0], basis)
-                a_q = np.hstack([base, f_q])
-                coef_q = _nonneg_fit(a_q, b)
-                cost_q = _soft_cost(b - a_q @ coef_q, scale)
-                if cost_q < cost:
-                    cands[i], f, a, coef, cost = q, f_q, a_q, coef_q, cost_q
+                on_axis = fit_at(q)
+                if on_axis[0] < cost:
+                    cands[i] = q
+                    cost, f, coef = on_axis
             costs.append(cost)
             profiles.append(coef[-basis.bins :])
             if merge == 1:
@@ -964,11 +967,9 @@ def _goniometric_test(
         mount = None
         if opt.mount_test and verts is not None:
 
-            def evaluate(q, base=base, b=b, p_n=p_n, n_n=n_n):
-                f = point_light_transfer(prob.caster, p_n, n_n, q, [0.0, 0.0, 1.0], basis)
-                a = np.hstack([base, f])
-                coef = _nonneg_fit(a, b)
-                return _soft_cost(b - a @ coef, scale), coef[-basis.bins :]
+            def evaluate(q, fit_at=fit_at):
+                cost, _, coef = fit_at(q)
+                return cost, coef[-basis.bins :]
 
             mount = _mount_test(
                 prob.caster, verts, cands, costs_a, profiles[j], j, solid, opt, vert_labels,
@@ -1248,9 +1249,6 @@ def merge_localized_lights(
                     if key in old.evidence:
                         new.evidence[key] = old.evidence[key]
                 new.evidence["localized_position"] = [float(c) for c in p]
-            lights.lights[best] = new
-            used.add(best)
-            if measured:
                 done.append(
                     f"{old.name}: kept at {np.round(q, 2).tolist()}, its place measured from "
                     f"its pool's edge (localization found it {best_d:.2f} m away, at "
@@ -1261,6 +1259,8 @@ def merge_localized_lights(
                     f"{old.name}: moved {best_d:.2f} m to {np.round(p, 2).tolist()} "
                     f"({LOCALIZED_REASON})"
                 )
+            lights.lights[best] = new
+            used.add(best)
         else:
             while f"localized{k}" in taken:
                 k += 1
