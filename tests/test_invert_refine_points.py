@@ -25,14 +25,19 @@ def _lamp_profile(basis: InclinationBasis) -> np.ndarray:
     return 0.2 + 2.0 * np.abs(np.cos(basis.bin_centres())) ** 3
 
 
+def _lamp_target(caster, p, n, truth, color, basis) -> np.ndarray:
+    """What the receivers see of a lamp at ``truth`` (``_lamp_profile``, ``color``)."""
+    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
+    return (f @ _lamp_profile(basis))[:, None] * color[None, :]
+
+
 def test_refinement_moves_a_misplaced_light_to_the_truth() -> None:
     caster, p, n = _room()
     basis = InclinationBasis(32)
     truth = np.array([1.3, 1.1, 1.6])
     color = np.array([0.7, 0.6, 0.4])
     color /= np.linalg.norm(color)
-    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
-    target = (f @ _lamp_profile(basis))[:, None] * color[None, :]
+    target = _lamp_target(caster, p, n, truth, color, basis)
     start = truth + np.array([0.09, -0.07, 0.05])
     ref = refine_point_position(
         caster, p, n, target, np.ones_like(target), color, start, [0, 0, 1], basis,
@@ -48,8 +53,7 @@ def test_refinement_stays_put_at_the_truth_and_within_its_bounds() -> None:
     basis = InclinationBasis(32)
     truth = np.array([2.5, 1.8, 2.0])
     color = np.ones(3) / np.sqrt(3)
-    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
-    target = (f @ _lamp_profile(basis))[:, None] * color[None, :]
+    target = _lamp_target(caster, p, n, truth, color, basis)
     ref = refine_point_position(
         caster, p, n, target, np.ones_like(target), color, truth, [0, 0, 1], basis,
         clearance=0.05,
@@ -81,8 +85,7 @@ def test_refinement_across_the_room_keeps_the_height() -> None:
     basis = InclinationBasis(32)
     truth = np.array([1.3, 1.1, 1.6])
     color = np.ones(3) / np.sqrt(3)
-    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
-    target = (f @ _lamp_profile(basis))[:, None] * color[None, :]
+    target = _lamp_target(caster, p, n, truth, color, basis)
     start = truth + np.array([0.08, -0.06, 0.0])
     ref = refine_point_position(
         caster, p, n, target, np.ones_like(target), color, start, [0, 0, 1], basis,
@@ -98,8 +101,7 @@ def test_extra_starts_keep_the_best_place() -> None:
     basis = InclinationBasis(32)
     truth = np.array([2.2, 1.4, 2.3])
     color = np.ones(3) / np.sqrt(3)
-    f = point_light_transfer(caster, p, n, truth, [0, 0, 1], basis, clearance=0.05)
-    target = (f @ _lamp_profile(basis))[:, None] * color[None, :]
+    target = _lamp_target(caster, p, n, truth, color, basis)
     start = truth + np.array([0.2, -0.1, -0.15])
     kw = dict(clearance=0.05, max_shift=0.3, max_evaluations=15)
     one = refine_point_position(
