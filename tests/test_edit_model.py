@@ -252,3 +252,5 @@ def test_spread_frames_takes_the_middles_not_the_ends():
     assert spread_frames([3, 5, 9], 4) == [3, 5, 9]  # never more than there are
     assert spread_frames([3, 5, 9, 11], 2) == [5, 11]
     assert spread_frames([7], 0) == [7]
+    with pytest.raises(ValueError, match="no usable frame"):
+        spread_frames([], 2)

@@ -31,7 +31,14 @@ def spread_frames(usable: list[int], count: int) -> list[int]:
     started (the synthetic scans' orbit does), so those two show the same view; the
     middles of the stretches look at different parts of the room on a loop and on a
     sweep alike.
+
+    Raises
+    ------
+    ValueError
+        ``usable`` is empty (no frame to render at).
     """
+    if len(usable) == 0:
+        raise ValueError("no usable frame to pick from (none has an exposure)")
     n = max(1, min(int(count), len(usable)))
     return [usable[int((k + 0.5) * len(usable) / n)] for k in range(n)]
 
