@@ -35,6 +35,10 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
 * the noise floor: the same figures between two truth renders with different seeds (for
   the reference row; the other rows reuse it per view unless ``--floor all``).
 
+* where the error is: per view, the share of the squared error within one pixel of a
+  depth or normal edge of the scan mesh, the RMSE without those pixels, and the rest's
+  shares by surface (wall, floor, ceiling, other; :func:`error_breakdown`).
+
 ``DIR/strips/`` gets ``ours | truth | error`` PNGs per view, ``DIR/fidelity.json`` every
 figure (written after each edit). Truth renders are cached in ``DIR`` (keyed by edit,
 view, spp and seed), so a re-run after a model change only re-renders ours.
@@ -167,6 +171,62 @@ def render_truth_cached(
     return imgs
 
 
+#: Layout labels named in the error breakdown (``layout/layout_labels.ply``).
+SURFACES = {0: "wall", 1: "floor", 2: "ceiling"}
+
+
+def surface_map(mesh, labels: np.ndarray, c2w: np.ndarray, intr) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel of a view: near an edge (bool) and the layout label of the surface seen.
+
+    A pixel is near an edge within one pixel of a 5 % depth jump or a 30° turn of the
+    normal between 4-neighbours (rays through the pixel centres, cast on the scan mesh);
+    the label is its hit face's first vertex's (-1: nothing hit).
+    """
+    from scipy import ndimage
+
+    from reroom.rays import RayCaster
+    from reroom.render.camera import subpixel_positions
+    from reroom.scan.camera import Frame
+
+    h, w = intr.height, intr.width
+    frame = Frame(index=0, c2w=np.asarray(c2w, float), intrinsics=intr, image_path=Path("-"))
+    o, d = frame.pixel_rays(subpixel_positions(0, w, 0, h, 1))
+    hits = RayCaster(mesh).intersect(o, d)
+    t = np.where(hits.hit, hits.t, np.nan).reshape(h, w)
+    n = np.nan_to_num(hits.normals).reshape(h, w, 3)
+    edge = np.zeros((h, w), bool)
+    for ax in (0, 1):
+        a, b = np.delete(t, -1, ax), np.delete(t, 0, ax)
+        with np.errstate(invalid="ignore"):
+            jump = np.abs(a - b) / np.fmin(a, b) > 0.05
+        turn = (np.delete(n, -1, ax) * np.delete(n, 0, ax)).sum(-1) < np.cos(np.radians(30))
+        e = jump | turn | (np.isnan(a) != np.isnan(b))
+        if ax == 0:
+            edge[:-1] |= e
+            edge[1:] |= e
+        else:
+            edge[:, :-1] |= e
+            edge[:, 1:] |= e
+    faces = np.asarray(mesh.faces)
+    label = np.where(hits.hit, labels[faces[np.maximum(hits.face, 0), 0]], -1).reshape(h, w)
+    return ndimage.binary_dilation(edge), label
+
+
+def error_breakdown(ours: np.ndarray, tru: np.ndarray, near_edge: np.ndarray, label) -> dict:
+    """Where a view's squared HDR error is: near edges, and on each surface elsewhere."""
+    se = ((ours - tru) ** 2).sum(-1)
+    total = max(float(se.sum()), 1e-300)
+    off = ~near_edge
+    out = {
+        "edge_pixel_share": float(near_edge.mean()),
+        "edge_error_share": float(se[near_edge].sum() / total),
+        "rel_rmse_off_edges": float(np.sqrt(se[off].sum() / max((tru[off] ** 2).sum(), 1e-300))),
+    }
+    for k, name in {**SURFACES, 255: "other"}.items():
+        out[f"{name}_error_share_off_edges"] = float(se[off & (label == k)].sum() / total)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -238,6 +298,12 @@ def main() -> None:
     for v in views:
         i = v["intr"]
         v["intr_key"] = [i.width, i.height, i.fx, i.fy, i.cx, i.cy]
+    from reroom.io.mesh import read_ply
+
+    vert_labels = np.asarray(
+        read_ply(scan_dir / "layout" / "layout_labels.ply").vertex_attributes["label"]
+    ).reshape(-1)
+    maps = {v["view"]: surface_map(scan.mesh, vert_labels, v["c2w"], v["intr"]) for v in views}
     cams_json = [
         {
             "name": v["view"],
@@ -346,6 +412,7 @@ def main() -> None:
                 "ssim": ssim_tonemapped(ours, tru),
                 "ssim_quarter": ssim_tonemapped(_box(ours, 4), _box(tru, 4)),
                 "ratio_of_means": float(ours.mean() / tru.mean()),
+                **error_breakdown(ours, tru, *maps[v["view"]]),
             }
             if floor_imgs is not None and ours_floor is not None:
                 tru2 = floor_imgs[k] * v["t_true"]
@@ -409,6 +476,16 @@ def main() -> None:
     print(HEADER)
     for r in results:
         print(_row(r))
+    print("\nWhere the squared HDR error is, per view (near an edge: within 1 px of a depth")
+    print("jump or a normal turn; the rest by surface):\n")
+    print("| edit | view | pixels near edges | their error share | RMSE off edges | wall | floor "
+          "| ceiling | other |\n|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+    for r in results:
+        for q in r["per_view"]:
+            print(f"| {r['edit']} | {q['view']} | {_pc(q['edge_pixel_share'])} "
+                  f"| {_pc(q['edge_error_share'])} | {_pc(q['rel_rmse_off_edges'])} | "
+                  + " | ".join(_pc(q[f"{n}_error_share_off_edges"])
+                               for n in ("wall", "floor", "ceiling", "other")) + " |")  # fmt: skip
 
 
 #: Markdown table of :func:`_row`.
