@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/bench_edit_fidelity.py SCAN --out DIR [--spp 256] [--truth-spp 256]
         [--frames 5,15,40] [--edits empty,light_off] [--docs-images docs/images]
+        [--no-denoise]
 
 ``SCAN`` is a synthetic scan with a recovered model (``hdr/``, ``layout/``, ``lights/``,
 ``invert/``, e.g. ``/tmp/e2e2`` copied) and its ``ground_truth/``. For each edit set
@@ -37,7 +38,9 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
 
 * where the error is: per view, the share of the squared error within one pixel of a
   depth or normal edge of the scan mesh, the RMSE without those pixels, and the rest's
-  shares by surface (wall, floor, ceiling, other; :func:`error_breakdown`).
+  shares by surface (wall, floor, ceiling, other; :func:`error_breakdown`), and the ratio
+  of means per surface there (the surface as the scan mesh labels it: after ``empty``, what
+  was furniture counts as "other").
 
 ``DIR/strips/`` gets ``ours | truth | error`` PNGs per view, ``DIR/fidelity.json`` every
 figure (written after each edit). Truth renders are cached in ``DIR`` (keyed by edit,
@@ -223,7 +226,10 @@ def error_breakdown(ours: np.ndarray, tru: np.ndarray, near_edge: np.ndarray, la
         "rel_rmse_off_edges": float(np.sqrt(se[off].sum() / max((tru[off] ** 2).sum(), 1e-300))),
     }
     for k, name in {**SURFACES, 255: "other"}.items():
-        out[f"{name}_error_share_off_edges"] = float(se[off & (label == k)].sum() / total)
+        on = off & (label == k)
+        out[f"{name}_error_share_off_edges"] = float(se[on].sum() / total)
+        t = float(tru[on].sum())
+        out[f"{name}_ratio_of_means_off_edges"] = float(ours[on].sum() / t) if t > 0 else None
     return out
 
 
@@ -238,6 +244,12 @@ def main() -> None:
     ap.add_argument("--frames", default="5,15,40", help="input frame indices")
     ap.add_argument("--edits", default=",".join(EDIT_SETS), help="edit sets to run")
     ap.add_argument("--model-max-depth", type=int, default=64)
+    ap.add_argument(
+        "--denoise",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="denoise ours as reroom does (OIDN); the truth is never denoised",
+    )
     ap.add_argument(
         "--floor",
         choices=("all", "reference"),
@@ -345,6 +357,7 @@ def main() -> None:
     doc_out = {
         "scan": str(scan_dir),
         "spp_ours": args.spp,
+        "denoised_ours": args.denoise,
         "spp_truth": args.truth_spp,
         "model_max_depth": args.model_max_depth,
         "frames": frames,
@@ -372,7 +385,10 @@ def main() -> None:
             """Ours per view in image units (cached: same model, edits, spp, depth, seed)."""
             dest = out / folder / edit
             meta = dest / f"{edit}.json"
-            want = _key(mops, args.spp, args.model_max_depth, seed, cams_json, frames, model_key)
+            want = _key(
+                mops, args.spp, args.model_max_depth, seed, cams_json, frames, model_key,
+                args.denoise,
+            )  # fmt: skip
             if meta.is_file() and json.loads(meta.read_text()).get("bench_key") == want:
                 doc = json.loads(meta.read_text())
             else:
@@ -387,6 +403,7 @@ def main() -> None:
                     work_dir=out / "ours_work",
                     max_depth=args.model_max_depth,
                     seed=seed,
+                    denoise=args.denoise,
                 )
                 doc["bench_key"] = want
                 atomic_write_json(meta, doc)
@@ -479,13 +496,16 @@ def main() -> None:
     print("\nWhere the squared HDR error is, per view (near an edge: within 1 px of a depth")
     print("jump or a normal turn; the rest by surface):\n")
     print("| edit | view | pixels near edges | their error share | RMSE off edges | wall | floor "
-          "| ceiling | other |\n|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+          "| ceiling | other | ratio of means off edges: wall / floor / ceiling |\n"
+          "|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     for r in results:
         for q in r["per_view"]:
             print(f"| {r['edit']} | {q['view']} | {_pc(q['edge_pixel_share'])} "
                   f"| {_pc(q['edge_error_share'])} | {_pc(q['rel_rmse_off_edges'])} | "
                   + " | ".join(_pc(q[f"{n}_error_share_off_edges"])
-                               for n in ("wall", "floor", "ceiling", "other")) + " |")  # fmt: skip
+                               for n in ("wall", "floor", "ceiling", "other")) + " | "
+                  + " / ".join(_f3(q.get(f"{n}_ratio_of_means_off_edges"))
+                               for n in ("wall", "floor", "ceiling")) + " |")  # fmt: skip
 
 
 #: Markdown table of :func:`_row`.

@@ -479,6 +479,9 @@ def edit(
         typer.Option(help="JSON list of new cameras (transform_matrix, fl_x, ..., name)."),
     ] = None,
     spp: Annotated[int, typer.Option(help="Samples per pixel.")] = 64,
+    denoise: Annotated[
+        bool, typer.Option(help="Denoise the renders (Open Image Denoise; not the composites).")
+    ] = True,
     scale: Annotated[
         float, typer.Option("--scale", help="Resize the rendered views (e.g. 0.5).")
     ] = 1.0,
@@ -546,6 +549,7 @@ def edit(
                     frames=frame_list,
                     cameras=cams,
                     spp=spp,
+                    denoise=denoise,
                     name=set_name,
                     resolution_scale=scale,
                     progress=cb,
@@ -590,7 +594,16 @@ def run_command(
     frames_to_render: Annotated[
         int, typer.Option(help="Input frames the re-renders and edit renders are made from.")
     ] = 2,
-    spp: Annotated[int, typer.Option(help="Samples per pixel of the renders.")] = 16,
+    spp: Annotated[
+        int | None,
+        typer.Option(
+            help="Samples per pixel of the renders (default: about a million a view, "
+            "16 at 160x120, 4 at 640x360)."
+        ),
+    ] = None,
+    denoise: Annotated[
+        bool, typer.Option(help="Denoise the re-renders and edit renders (Open Image Denoise).")
+    ] = True,
     default_edits: Annotated[
         bool, typer.Option(help="Render the default edit sets (empty, repaint, relight, ...).")
     ] = True,
@@ -616,6 +629,7 @@ def run_command(
         edits_file=edits,
         frames_to_render=frames_to_render,
         spp=spp,
+        denoise=denoise,
         default_edits=default_edits,
         evaluate=evaluate,
         localize=localize,
@@ -653,7 +667,10 @@ def demo(
         "out/demo"
     ),
     frames: Annotated[int, typer.Option(help="Number of frames.")] = 24,
-    spp: Annotated[int, typer.Option(help="Samples per pixel of the renders.")] = 16,
+    spp: Annotated[
+        int | None,
+        typer.Option(help="Samples per pixel of the renders (default: as reroom run)."),
+    ] = None,
 ) -> None:
     """The main job on the embedded default: the `furnished` room, then `reroom run` on it.
 
@@ -696,6 +713,7 @@ def demo(
         force=None,
         frames_to_render=2,
         spp=spp,
+        denoise=True,
         default_edits=True,
         evaluate=True,
     )

@@ -72,7 +72,11 @@ class RunOptions:
         Input frames (spread over those with an exposure: the middles of equal stretches) that the re-render and
         the edit renders are made from.
     spp:
-        Path-tracing samples per pixel of the re-renders and edit renders.
+        Path-tracing samples per pixel of the re-renders and edit renders; ``None``
+        (default): about a million samples a view (:func:`reroom.render.frames.auto_spp`:
+        16 at 160 x 120, 4 at 640 x 360), enough once denoised.
+    denoise:
+        Denoise those renders (OIDN, :func:`reroom.render.denoise.denoise`).
     default_edits:
         Render the default edit sets (``reroom.edit.default_edit_sets``).
     hdr_baselines:
@@ -99,7 +103,8 @@ class RunOptions:
     out_dir: Path | None = None
     edits_file: Path | None = None
     frames_to_render: int = 2
-    spp: int = 16
+    spp: int | None = None
+    denoise: bool = True
     default_edits: bool = True
     hdr_baselines: bool = False
     invert_rays: int = 512
@@ -246,6 +251,18 @@ def render_frames(run: Path, count: int) -> list[int]:
     return spread_frames(usable, count)
 
 
+def render_spp(run: Path, options: RunOptions) -> int:
+    """The re-renders' and edit renders' samples per pixel: ``options.spp``, or by the
+    first frame's size (:func:`reroom.render.frames.auto_spp`)."""
+    if options.spp is not None:
+        return int(options.spp)
+    from reroom.render.frames import auto_spp
+    from reroom.scan import load_scan
+
+    intr = load_scan(run, check_images=False).frames[0].intrinsics
+    return auto_spp(intr.width, intr.height)
+
+
 def _safe_name(name: str) -> str:
     keep = "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip("._")
     return keep or "edit"
@@ -338,8 +355,9 @@ def build_stages(
             invert_dir,
             lights_dir,
             frames=options.frames_to_render,
-            spp=options.spp,
+            spp=render_spp(run, options),
             out_dir=rerender_dir,
+            denoise=options.denoise,
         )
         cb("rerender", 1, 1)
 
@@ -357,6 +375,7 @@ def build_stages(
             name, ops = load_edit_file(options.edits_file)
             sets[name] = ops
         frames = render_frames(run, options.frames_to_render)
+        spp = render_spp(run, options)
         entries = []
         cb("edits", 0, len(sets))
         for k, (name, ops) in enumerate(sets.items()):
@@ -368,7 +387,8 @@ def build_stages(
                     ops,
                     folder,
                     frames=frames,
-                    spp=options.spp,
+                    spp=spp,
+                    denoise=options.denoise,
                     name=_safe_name(name),
                     invert_dir=invert_dir,
                     lights_dir=lights_dir,
@@ -391,7 +411,13 @@ def build_stages(
             cb("edits", k + 1, len(sets))
         atomic_write_json(
             edits_dir / "edits.json",
-            {"format": "reroom-run-edits", "version": 1, "spp": options.spp, "sets": entries},
+            {
+                "format": "reroom-run-edits",
+                "version": 1,
+                "spp": spp,
+                "denoised": options.denoise,
+                "sets": entries,
+            },
         )
 
     def run_report(cb: ProgressFn) -> None:
@@ -419,6 +445,7 @@ def build_stages(
     edit_options = {
         "frames_to_render": options.frames_to_render,
         "spp": options.spp,
+        "denoise": options.denoise,
         "default_edits": options.default_edits,
         # The file's content is an input; its name only names the edit set.
         "edits_file": Path(options.edits_file).stem if options.edits_file else None,
@@ -455,7 +482,7 @@ def build_stages(
             "rerender",
             rerender_dir,
             rerender_inputs,
-            {"frames": options.frames_to_render, "spp": options.spp},
+            {"frames": options.frames_to_render, "spp": options.spp, "denoise": options.denoise},
             [rerender_dir / "rerender.json", rerender_dir / "rerender.png"],
             run_rerender,
         ),

@@ -175,6 +175,7 @@ def render_edit(
     resolution_scale: float = 1.0,
     seed: int = 0,
     scene: dict[str, Any] | None = None,
+    denoise: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Render the edited model from input frames and/or new cameras.
@@ -206,6 +207,9 @@ def render_edit(
         Resize every view (e.g. 0.5 for a quick look).
     scene:
         A scene dict from :func:`edited_scene` to render instead of building one.
+    denoise:
+        Pass each render through OIDN (:func:`reroom.render.denoise.denoise`), guided
+        by the first hit's albedo and normal: clean pictures from few samples.
     progress:
         ``progress(stage, done, total)`` after each view.
 
@@ -242,7 +246,7 @@ def render_edit(
     for k, v in enumerate(views):
         intr = v["intrinsics"]
         if intr not in renderers:  # one loaded scene (compiled kernels) per camera model
-            renderers[intr] = FrameRenderer(scene, intr, spp)
+            renderers[intr] = FrameRenderer(scene, intr, spp, denoise=denoise)
         t1 = time.perf_counter()
         img = renderers[intr].render(v["c2w"], seed=seed + (v["frame"] or 0) * 7 + k)
         secs = time.perf_counter() - t1
@@ -270,6 +274,7 @@ def render_edit(
         "scan": str(scan_dir),
         "edits": edit_document(ops),
         "spp": int(spp),
+        "denoised": bool(denoise),
         "max_depth": int(max_depth),
         "response": exposures.get("response", "auto"),
         "units": "EXR: linear radiance in the model's units (the HDR mesh's), before exposure; "

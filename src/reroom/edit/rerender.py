@@ -55,6 +55,7 @@ def rerender_inputs(
     spp: int = 16,
     unit_scale: np.ndarray | float = 1.0,
     out_dir: str | Path | None = None,
+    denoise: bool = True,
 ) -> dict[str, Any]:
     """Render ``frames`` input frames (:func:`spread_frames`) from the model; write a comparison.
 
@@ -67,6 +68,8 @@ def rerender_inputs(
     out_dir:
         Where ``rerender.png`` (photo | render, one frame a row) and ``rerender.json``
         go (default: the invert folder).
+    denoise:
+        Denoise the renders (:func:`reroom.render.denoise.denoise`).
 
     Returns
     -------
@@ -104,7 +107,7 @@ def rerender_inputs(
     for j in pick:
         frame = scan.frames[j]
         if renderer is None:
-            renderer = FrameRenderer(scene, frame.intrinsics, spp)
+            renderer = FrameRenderer(scene, frame.intrinsics, spp, denoise=denoise)
         t = np.asarray(exposures["frames"][j]["scale"], float)
         pred = renderer.render(frame.c2w, seed=j) * t * scale
         raw = frame.load_image()
@@ -132,6 +135,7 @@ def rerender_inputs(
         "median_ratio_of_means": med("ratio_of_means"),
         "median_relative_l1": med("relative_l1"),
         "spp": spp,
+        "denoised": bool(denoise),
         "unit_scale": scale.tolist(),
         "picture": "rerender.png",
     }
