@@ -486,3 +486,20 @@ def test_floating_lights_dropped_by_default(room_scan: Path, localized):
     kept, _ = localized
     assert len(info["floating"]) >= len(kept.positions)
     assert all(f["reason"].startswith("floating:") for f in info["floating"])
+
+
+def test_shared_nnls_matches_plain_nnls():
+    from reroom.localize.scan import _nonneg_fit, _SharedNNLS
+
+    rng = np.random.default_rng(3)
+    n, m0, m1 = 600, 40, 12
+    base = np.abs(rng.normal(size=(n, m0))) * rng.uniform(0.01, 10.0, m0)
+    base[:, 5] = 0.0  # an unobserved light: a zero column
+    f = np.abs(rng.normal(size=(n, m1)))
+    b = base[:, :6] @ rng.uniform(0, 1, 6) + f[:, :4] @ rng.uniform(0, 1, 4)
+    b += 0.05 * rng.normal(size=n)
+    a = np.hstack([base, f])
+    coef, resid = _SharedNNLS(base, b).fit(f)
+    np.testing.assert_allclose(coef, _nonneg_fit(a, b), atol=1e-9)
+    np.testing.assert_allclose(resid, b - a @ coef, atol=1e-9)
+    assert (coef >= 0).all()
