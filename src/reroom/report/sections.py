@@ -367,7 +367,9 @@ def rerender_section(run: Path) -> str:
     )
     html += (
         f"<p>Median ratio of means {fmt(doc.get('median_ratio_of_means'))}, median relative "
-        f"L1 {fmt(doc.get('median_relative_l1'))}, {fmt(doc.get('spp'))} samples per pixel.</p>"
+        f"L1 {fmt(doc.get('median_relative_l1'))}, {fmt(doc.get('spp'))} samples per pixel"
+        + (", denoised (Open Image Denoise)" if doc.get("denoised") else "")
+        + ".</p>"
     )
     if (rr / "rerender.png").is_file():
         html += figure(rr / "rerender.png", "photo | re-render", MAX_WIDTH, width=2 * THUMB)
@@ -397,6 +399,12 @@ def edits_section(run: Path, scan: Scan) -> str:
         return _missing("edit renders", ed / "edits.json")
     doc = _read_json(ed / "edits.json")
     html = ""
+    if doc.get("spp") is not None:
+        html += (
+            f"<p>Path-traced at {fmt(doc.get('spp'))} samples per pixel"
+            + (", denoised (Open Image Denoise)" if doc.get("denoised") else "")
+            + ".</p>"
+        )
     frames = sorted({int(j) for e in doc.get("sets", []) for j in e.get("frames", [])})
     frames = [j for j in frames if 0 <= j < len(scan.frames)]
     if frames:
