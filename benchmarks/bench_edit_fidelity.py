@@ -11,8 +11,9 @@ Usage::
 below (and the unedited model as the reference row) this renders
 
 * **ours**: the edited model, by the model side's own code
-  (:func:`reroom.edit.render_edits.render_edit`), times each frame's *recovered*
-  exposure ``t_j`` (``hdr/exposures.json``);
+  (:func:`reroom.edit.render_edits.render_edit`, denoised as reroom renders it unless
+  ``--no-denoise``), times each frame's *recovered* exposure ``t_j``
+  (``hdr/exposures.json``);
 * **truth**: the same edit applied to the true scene (:mod:`reroom.synth.edits`),
   path-traced by the renderer that made the frames, times each frame's *true* scale
   (``ground_truth.json``: exposure x white balance);
