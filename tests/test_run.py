@@ -61,6 +61,8 @@ def test_first_run_makes_every_stage_and_leaves_the_scan_alone(first_run) -> Non
     assert (out / "transforms.json").is_symlink() and (out / "images").is_symlink()
     edits = json.loads((out / "edits" / "edits.json").read_text())
     assert [s["name"] for s in edits["sets"]] == ["paint"]
+    assert edits["spp"] == 4 and edits["denoised"] is True  # the renders are denoised
+    assert json.loads((out / "rerender" / "rerender.json").read_text())["denoised"] is True
     assert list((out / "edits" / "paint").glob("*.png"))
     html = (out / "report.html").read_text()
     assert "paint" in html and "could not be drawn" not in html
