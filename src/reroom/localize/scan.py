@@ -515,7 +515,8 @@ class _SharedNNLS:
     the equilibrated ``base`` is made once; for each ``f`` only its part orthogonal to
     ``base`` is factored, and NNLS runs on the small triangular system ``R x ~ Q^T b``
     (the same minimiser: ``|A x - b|^2 = |R x - Q^T b|^2 + const``) instead of the
-    ~4000-row one: 4-6x faster (measured on the 300-frame scan, ~10 s saved).
+    ~4000-row one (docs/localize.md, "Session 9": the whole localization of the 300-frame
+    scan 55 -> 40 s in ``bench_localize_scan.py``, same positions).
     """
 
     def __init__(self, base: np.ndarray, b: np.ndarray) -> None:
@@ -526,8 +527,8 @@ class _SharedNNLS:
         self.q, self.r = np.linalg.qr(base / cn)
         self.qtb = self.q.T @ b
 
-    def fit(self, f: np.ndarray) -> tuple[np.ndarray, float]:
-        """Coefficients ``[x_base, x_f]`` and the residual vector's cost input ``b - A x``."""
+    def fit(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Non-negative coefficients ``[x_base, x_f]`` and the residual ``b - [base f] x``."""
         cf = np.linalg.norm(f, axis=0)
         cf[cf == 0] = 1.0
         ff = f / cf

@@ -85,7 +85,7 @@ class FrameRenderer:
             raise RuntimeError("this Mitsuba build does not expose sensor.to_world for updates")
         self.denoise = bool(denoise)
         self.aux_spp = int(aux_spp)
-        self._aux = None
+        self._aux = self._direct = None
         if self.denoise:
             from reroom.render.denoise import AUX_AOVS
 
@@ -100,7 +100,7 @@ class FrameRenderer:
         self.params["sensor.to_world"] = mitsuba_to_world(c2w)
         self.params.update()
         img = np.asarray(mi.render(self.scene, spp=self.spp, seed=seed), dtype=np.float32)[..., :3]
-        if self._aux is not None:
+        if self.denoise:
             from reroom.render.denoise import denoise
 
             aux = np.asarray(
