@@ -16,6 +16,10 @@ reads ``ground_truth/``, which the estimate never does.
     the same eq. 5.7 problem re-solved with the receivers' ``Lbar`` or their ``E_ind``
     taken from the truth, or with the window's cube cells fixed to the truth's:
     cluster-albedo and light-power errors per row.
+``--truth-run``
+    ``reroom invert`` with the true per-vertex radiance and the true lights together: the
+    light models' and the solve's own error. With scans that have only some lights on
+    (``reroom synth ... --lights tube,window0``) it shows which lights the solve confuses.
 ``--light-swaps``
     ``reroom invert`` with the detected lights, then with one detected light at a time
     replaced by its true counterpart (same type, nearest position; its name kept):
@@ -165,6 +169,27 @@ def _invert(scan: Path, out: Path, radiance=None, solve: SolveOptions | None = N
     return res
 
 
+def _true_lights_scan(scan: Path, work: Path) -> Path:
+    """A linked copy of ``scan`` whose ``lights/`` are the truth's (evaluation only)."""
+    from reroom.lights import write_lights
+
+    write_lights(lights_from_truth(scan), work / "true_lights")
+    return linked_scan(scan, work / "scan_true_lights", {"lights": work / "true_lights"})
+
+
+def truth_run(scan: Path, work: Path, solve: SolveOptions) -> None:
+    """``reroom invert`` with the true radiance *and* the true lights: what is left is
+    the light models' and the solve's own error (e.g. two lights confused)."""
+    true_rad, _, _ = _truth(scan)
+    src = _true_lights_scan(scan, work)
+    out = work / "true_radiance_true_lights"
+    _invert(src, out, true_rad, solve)
+    print(
+        "| run | wall | floor | ceiling | lights (power error, distribution L2) |\n|---|---|---|---|---|"
+    )
+    print(_row("true radiance, true lights", evaluate_invert(src, out)), flush=True)
+
+
 def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
     """Each input of the end-to-end run swapped for the truth's, one at a time.
 
@@ -172,12 +197,7 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
     """
     true_rad, true_albedo, label = _truth(scan)
     _, observed = _hdr(scan)
-    from reroom.lights import write_lights
-
-    write_lights(lights_from_truth(scan), work / "true_lights")
-    true_lights_scan = linked_scan(
-        scan, work / "scan_true_lights", {"lights": work / "true_lights"}
-    )
+    true_lights_scan = _true_lights_scan(scan, work)
     print(
         "| run | wall | floor | ceiling | lights (power error, distribution L2) |\n|---|---|---|---|---|"
     )
@@ -397,6 +417,9 @@ def main() -> None:
     ap.add_argument(
         "--invert", default="{}", help="InvertOptions as JSON, e.g. '{\"near_distance\": 0}'"
     )
+    ap.add_argument(
+        "--truth-run", action="store_true", help="invert with true radiance and true lights"
+    )
     ap.add_argument("--light-swaps", action="store_true")
     ap.add_argument("--indirect", action="store_true")
     ap.add_argument("--bands", action="store_true")
@@ -416,6 +439,8 @@ def main() -> None:
         reprobe(args.scan, args.reprobe, args.eval_dir)
     if args.swaps:
         swaps(args.scan, args.work, SolveOptions(**json.loads(args.solve)), args.rows)
+    if args.truth_run:
+        truth_run(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.light_swaps:
         light_swaps(args.scan, args.work)
     if args.indirect:
