@@ -20,6 +20,11 @@ reads ``ground_truth/``, which the estimate never does.
     ``reroom invert`` with the true per-vertex radiance and the true lights together: the
     light models' and the solve's own error. With scans that have only some lights on
     (``reroom synth ... --lights tube,window0``) it shows which lights the solve confuses.
+    With a window, the same problem is re-solved with its cells fixed to the truth's.
+``--window-photos``
+    The photos' pixels seen through the window, binned per cube cell: how much of each
+    cell they saw, how much was saturated, and what they say about its radiance (the
+    unsaturated mean; a lower bound with the saturated samples) against the truth.
 ``--light-swaps``
     ``reroom invert`` with the detected lights, then with one detected light at a time
     replaced by its true counterpart (same type, nearest position; its name kept):
@@ -156,6 +161,9 @@ def _row(label: str, report: dict) -> str:
 INVERT_EXTRA: dict = {}
 
 
+_invert_result_cache: dict[Path, object] = {}
+
+
 def _invert(scan: Path, out: Path, radiance=None, solve: SolveOptions | None = None):
     res = run_invert(
         scan,
@@ -166,7 +174,80 @@ def _invert(scan: Path, out: Path, radiance=None, solve: SolveOptions | None = N
     if radiance is not None:
         # evaluate_invert then takes the radiance's scale as 1 (it is the truth's)
         (out / "true_radiance.flag").write_text("evaluation-only: true radiance\n")
+    _invert_result_cache[out] = res
     return res
+
+
+def window_photos(scan: Path) -> None:
+    """What the photos seen through the (first) window tell about its cube cells.
+
+    Per cell the photos touch: the share of the cell's solid angle they saw, the share of
+    their samples that were saturated, the unsaturated samples' mean and the lower bound
+    ``sum(a_t max(mean_t, bound_t)) / A_cell`` (unseen texels counted 0), both in the
+    truth's units (divided by the HDR radiance's scale ``k``), against the true cell
+    (:func:`reroom.invert.evaluate.true_window_cells`). Needs ``hdr/`` and the truth.
+    """
+    from reroom.invert.basis import CubemapBasis
+    from reroom.invert.evaluate import true_window_cells
+    from reroom.invert.window_env import (
+        latlong_directions,
+        latlong_solid_angles,
+        observe_windows,
+    )
+    from reroom.invert.windows import WindowOpening
+    from reroom.io.mesh import read_ply
+
+    gt = json.loads((scan / "ground_truth" / "scene" / "scene.json").read_text())
+    wins = [x for x in gt["lights"] if x["type"] == "window" and x.get("on", True)]
+    if not wins:
+        print("no window in the truth")
+        return
+    t = wins[0]
+    c = np.asarray(t["corners"], float)
+    opening = WindowOpening(
+        t["name"], c.mean(axis=0), (c[1] - c[0]) / 2, (c[3] - c[0]) / 2, np.asarray(t["normal"])
+    )
+    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
+    (ph,), stats = observe_windows(scan, mesh, [opening], height=128)
+    true_rad, _, _ = _truth(scan)
+    lbar = np.asarray(mesh.vertex_attributes["radiance"], float)
+    ok = np.asarray(mesh.vertex_attributes["observed"]).astype(bool)
+    ok &= (true_rad > 1e-4).all(axis=1) & (lbar > 0).all(axis=1)
+    k = lbar[ok].sum(axis=0) / true_rad[ok].sum(axis=0)
+    basis = CubemapBasis(4)
+    truth, shown = true_window_cells(t, scan / "ground_truth" / "scene", n=4)
+    cell = basis.cell_of(latlong_directions(128).reshape(-1, 3))
+    area = latlong_solid_angles(128).ravel()
+    mean = ph.mean.reshape(-1, 3) / k
+    bound = ph.bound.reshape(-1, 3) / k
+    cnt, sat = ph.count.ravel(), ph.saturated.ravel()
+    seen = (cnt > 0) | (sat > 0)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    print(
+        f"{stats['samples'][0]} samples through the window, {stats['saturated'][0]} saturated; "
+        f"k = {np.round(k, 3).tolist()}; {int(shown.sum())} cells shown\n"
+    )
+    print("| cell | true luminance | share seen | saturated | unsat. mean / true | bound / true |")
+    print("|---|---|---|---|---|---|")
+    for j in np.flatnonzero(shown):
+        m = cell == j
+        if not (m & seen).any():
+            continue
+        a_cell = area[m].sum()
+        s = m & seen
+        u = m & (cnt > 0)
+        value = np.maximum(np.where((cnt > 0)[:, None], np.nan_to_num(mean), 0.0), bound)
+        lb = (area[s, None] * value[s]).sum(axis=0) / a_cell
+        um = (area[u, None] * mean[u]).sum(axis=0) / max(area[u].sum(), 1e-12)
+        tl = float(truth[j] @ lum)
+        print(
+            f"| {j} | {tl:.2f} | {area[s].sum() / a_cell:.2f} | "
+            f"{sat[m].sum() / max(cnt[m].sum() + sat[m].sum(), 1):.2f} | "
+            f"{(um @ lum) / tl if u.any() else float('nan'):.2f} | {(lb @ lum) / tl:.2f} |"
+        )
+    bright = shown & (truth @ lum > 1.0)
+    unseen = [j for j in np.flatnonzero(bright) if not ((cell == j) & seen).any()]
+    print(f"\ncells brighter than 1 (truth): {int(bright.sum())}, seen by no photo: {len(unseen)}")
 
 
 def _true_lights_scan(scan: Path, work: Path) -> Path:
@@ -188,6 +269,17 @@ def truth_run(scan: Path, work: Path, solve: SolveOptions) -> None:
         "| run | wall | floor | ceiling | lights (power error, distribution L2) |\n|---|---|---|---|---|"
     )
     print(_row("true radiance, true lights", evaluate_invert(src, out)), flush=True)
+    res = _invert_result_cache.get(out)
+    fixed = _window_from_truth(scan, res.problem, np.ones(3)) if res is not None else None
+    if fixed is None:
+        return
+    # The same problem with the window's cells fixed to the truth's (in E_ind): how much of
+    # each other light's error the window's under-determined cells cause.
+    again = solve_lighting(fixed, solve)
+    print("\nre-solved with the window's cells fixed to the truth's, power / as solved:")
+    for b in fixed.lights:
+        ratio = again.intensities[b.name].sum(axis=0) / res.solve.intensities[b.name].sum(axis=0)
+        print(f"  {b.name}: " + " / ".join(f"{x:.3f}" for x in ratio))
 
 
 def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
@@ -421,6 +513,9 @@ def main() -> None:
         "--truth-run", action="store_true", help="invert with true radiance and true lights"
     )
     ap.add_argument("--light-swaps", action="store_true")
+    ap.add_argument(
+        "--window-photos", action="store_true", help="what the photos through the window show"
+    )
     ap.add_argument("--indirect", action="store_true")
     ap.add_argument("--bands", action="store_true")
     ap.add_argument("--bin-by", type=Path, help="independent truth PLY for --bands")
@@ -443,6 +538,8 @@ def main() -> None:
         truth_run(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.light_swaps:
         light_swaps(args.scan, args.work)
+    if args.window_photos:
+        window_photos(args.scan)
     if args.indirect:
         indirect(args.scan, args.work)
     if args.bands:

@@ -533,3 +533,57 @@ def test_line_light_with_phi_bins_off_scale_color_and_move(scan: Path, tmp_path:
         edited_scene(scan, [], invert_dir=inv, max_depth=2), pts - [1.0, 0.0, 0.0], spp=16
     )
     np.testing.assert_allclose(moved[:2], shifted[:2], rtol=0.02)
+
+
+def test_photo_textures_render_on_the_scan_and_as_pattern_in_the_empty_room(
+    scan: Path, tmp_path: Path
+) -> None:
+    import shutil
+
+    from reroom.invert.textures import SurfaceTexture, write_textures
+
+    room = tmp_path / "scan"
+    shutil.copytree(scan, room)
+    # The floor's texture: albedo 0.2 for x < 2, 0.8 beyond (10 cm texels); its detail
+    # (the pattern the empty room shows) 0.5 for y < 1.5, 1.5 beyond.
+    albedo = np.full((30, 40, 3), 0.2, np.float32)
+    albedo[:, 20:] = 0.8
+    detail = np.full((30, 40, 3), 0.5, np.float32)
+    detail[15:] = 1.5
+    tex = SurfaceTexture(
+        label="floor",
+        axis=2,
+        offset=0.0,
+        origin=(0.0, 0.0),
+        texel=0.1,
+        albedo=albedo,
+        detail=detail,
+        count=np.ones((30, 40), np.int64),
+        rotation=np.eye(3),
+        name="floor_0",
+    )
+    doc = json.loads((room / "invert" / "scene.json").read_text())
+    doc["textures"] = write_textures([tex], room / "invert")
+    (room / "invert" / "scene.json").write_text(json.dumps(doc))
+    left = np.array([[0.6, 0.8, 0.0], [1.2, 2.4, 0.0]])
+    right = np.array([[3.4, 0.6, 0.0], [3.5, 2.5, 0.0]])
+    wall = np.array([[3.999, 1.0, 1.0]])
+
+    scene = edited_scene(room, [], max_depth=2)
+    assert "texture_floor_0" in scene
+    np.testing.assert_allclose(_probe(scene, left)[:, 0], _direct(left, rho=0.2), rtol=3e-3)
+    np.testing.assert_allclose(_probe(scene, right)[:, 0], _direct(right, rho=0.8), rtol=3e-3)
+    wall_base = _probe(edited_scene(scan, [], max_depth=2), wall, (-1.0, 0.0, 0.0))
+    np.testing.assert_allclose(_probe(scene, wall, (-1.0, 0.0, 0.0)), wall_base, rtol=1e-3)
+    # The empty room: the detail at the plane's mean albedo (0.5).
+    empty = edited_scene(room, [{"op": "empty"}], max_depth=2)
+    assert "room_texture_floor_0" in empty and "room_floor" not in empty
+    got = _probe(empty, np.r_[left, right])[:, 0]
+    want = _direct(np.r_[left, right], rho=1.0) * 0.5 * np.r_[0.5, 1.5, 0.5, 1.5]
+    np.testing.assert_allclose(got, want, rtol=3e-3)
+    # A repainted floor drops its texture.
+    painted = edited_scene(
+        room, [{"op": "repaint", "target": "floor", "color": [0.5, 0.5, 0.5]}], max_depth=2
+    )
+    assert "texture_floor_0" not in painted
+    np.testing.assert_allclose(_probe(painted, right)[:, 0], _direct(right, rho=0.5), rtol=3e-3)

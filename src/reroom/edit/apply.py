@@ -6,8 +6,9 @@ edit operations of :mod:`reroom.edit.edits` in order:
 
 * ``empty``: the scan mesh is replaced by the layout's empty-room shell
   (``layout/layout.json`` through :func:`reroom.layout.emptyroom.empty_room_mesh`, in the
-  mesh frame), one diffuse material per label: the solved cluster albedo of wall, floor and
-  ceiling, the median per-vertex albedo of door and baseboard vertices. The pane closing
+  mesh frame), one diffuse material per label where no photo texture covers it (below):
+  the solved cluster albedo of wall, floor and ceiling, the median per-vertex albedo of
+  door and baseboard vertices. The pane closing
   each window opening is dropped (the window's portal takes its place) and so are the
   panes closing passages (the rooms' shells join). The fittings around point and line
   lights (lamp shades, tube baffles: unlabelled scan geometry near the light) are kept,
@@ -28,6 +29,14 @@ edit operations of :mod:`reroom.edit.edits` in order:
   light, scaled into model units (see :func:`swap_window_environment`).
 * ``insert``: a bundled or loaded object (:mod:`reroom.edit.furniture`), diffuse, which
   must stand inside a room's floor polygon.
+
+Where ``reroom invert`` made photo textures of the floor, ceiling and wall planes
+(``scene.json``'s ``textures``, :mod:`reroom.invert.textures`), those surfaces render
+with them instead of the per-vertex albedo: the scan mesh's faces of each plane and,
+in the empty room, the shell's faces on the same planes (a plane's label, axis and
+position within 15 cm), where the empty room takes the plane's pattern at the plane's
+mean albedo (the texture's local mean would show what stood there). A repainted label
+drops its texture.
 """
 
 from __future__ import annotations
@@ -36,6 +45,7 @@ import copy
 import hashlib
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +130,30 @@ class RoomModel:
             for m in self.doc.get("materials", [])
             if m.get("albedo") is not None
         }
+
+    @cached_property
+    def photo_textures(self) -> list[tuple[Any, Path]]:
+        """``(SurfaceTexture, its EXR path)`` of each photo texture in ``scene.json``."""
+        from reroom.invert.textures import read_textures
+
+        entries = self.doc.get("textures") or []
+        if not entries:
+            return []
+        # The renderer reads the images itself: only the mapping is needed here.
+        textures = read_textures(entries, self.invert_dir, images=False)
+        return [
+            (t, (self.invert_dir / e["file"]).resolve())
+            for t, e in zip(textures, entries, strict=True)
+        ]
+
+    def texture_detail(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Photo texture ``index``'s detail image and its plane's mean albedo."""
+        from reroom.invert.textures import read_textures
+
+        entry = self.doc["textures"][index]
+        tex = read_textures([entry], self.invert_dir)[0]
+        mean = entry.get("mean_albedo")
+        return tex.detail, np.asarray(mean, float) if mean is not None else tex.mean_albedo
 
     def targets(self) -> list[str]:
         """Repaint targets: the labels this room has, and its material clusters."""
@@ -369,6 +403,71 @@ def _textured_shape(
     }
 
 
+def _photo_textured_shape(
+    path: Path, vertices: np.ndarray, faces: np.ndarray, texture, image: Path, twosided: bool
+) -> dict[str, Any]:
+    """A PLY shape of the faces, unwelded, with ``u, v`` on a photo texture's plane."""
+    tri = np.asarray(vertices, float)[np.asarray(faces)]
+    v = tri.reshape(-1, 3)
+    uv = texture.texture_coords(v)
+    f = np.arange(len(v)).reshape(-1, 3)
+    filename = _shape_ply(path, v, f, u=uv[:, 0], v=uv[:, 1])
+    bsdf = {
+        "type": "diffuse",
+        "reflectance": {
+            "type": "bitmap",
+            "filename": str(image),
+            "raw": True,  # linear albedo
+            "wrap_mode": "clamp",
+        },
+    }
+    return {
+        "type": "ply",
+        "filename": filename,
+        "face_normals": True,
+        "bsdf": {"type": "twosided", "bsdf": bsdf} if twosided else bsdf,
+    }
+
+
+def _label_names(face_label: np.ndarray) -> np.ndarray:
+    names = {v: k for k, v in _LABEL_IDS.items()}
+    return np.array([names.get(int(x), "other") for x in face_label], dtype=object)
+
+
+def _photo_texture_scan(
+    scene: dict[str, Any], model: RoomModel, skip: set[str], work: Path
+) -> None:
+    """Move the scan mesh's faces on a photo-textured plane into textured shapes
+    (``texture_<plane>``); labels in ``skip`` (repainted) keep their per-vertex albedo."""
+    textures = model.photo_textures
+    if not textures or model.labels is None:
+        return
+    from reroom.invert.textures import match_planes
+
+    room = read_ply(scene["room"]["filename"])
+    faces = np.asarray(room.faces)
+    vertices = np.asarray(room.vertices)
+    names = _label_names(_face_labels(model.labels, faces))
+    which = match_planes([t for t, _ in textures], vertices, faces, names)
+    which[np.isin(names, sorted(skip))] = -1
+    if not (which >= 0).any():
+        return
+    for k, (tex, image) in enumerate(textures):
+        sel = which == k
+        if sel.any():
+            scene[f"texture_{tex.name}"] = _photo_textured_shape(
+                work / f"texture_{tex.name}.ply", vertices, faces[sel], tex, image, False
+            )
+    path = work / "room_untextured.ply"
+    write_triangle_ply(
+        path,
+        vertices,
+        faces[which < 0],
+        {"albedo": np.asarray(room.vertex_attributes["albedo"], np.float32)},
+    )
+    scene["room"]["filename"] = str(path)
+
+
 def _face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Label of each face: the label of at least two of its vertices, else 'other'."""
     fl = labels[faces]
@@ -545,7 +644,8 @@ def edited_scene(
     Returns
     -------
     dict
-        Shapes: ``room`` (scan mesh) or ``room_<label>`` (empty shell), ``fixtures``,
+        Shapes: ``room`` (scan mesh) or ``room_<label>`` (empty shell), ``texture_<plane>``
+        / ``room_texture_<plane>`` (photo-textured planes of the scan mesh / the shell), ``fixtures``,
         ``paint_<target>`` (textured repaints), ``light_NN`` (the model's lights, ``NN``
         their index in ``scene.json``), ``light_NN_patch`` (where an area light was),
         ``added_<name>`` (added lights), ``insert_<name>`` (inserted objects).
@@ -681,6 +781,7 @@ def edited_scene(
         if moved_faces.any():
             _remove_from_room(scene, model.faces[moved_faces], work)
         _texture_scan(scene, model, textured, work)
+        _photo_texture_scan(scene, model, set(paint), work)
 
     for op in inserts:
         from reroom.edit.furniture import placed_object
@@ -943,6 +1044,31 @@ def _empty_room(
         keep &= ~(on_plane & parallel & within & (face_label == _LABEL_IDS["window"]))
     del scene["room"]
     names = {v: k for k, v in _LABEL_IDS.items()}
+    # The shell's faces on a photo-textured plane (floor, ceiling, walls not repainted).
+    photo = np.full(len(sf), -1, np.int64)
+    if model.photo_textures:
+        from reroom.invert.textures import match_planes
+
+        photo = match_planes([t for t, _ in model.photo_textures], sv, sf, _label_names(face_label))
+        photo[~keep | np.isin(_label_names(face_label), sorted(paint))] = -1
+        from reroom.io.images import write_exr
+
+        for k, (tex, _) in enumerate(model.photo_textures):
+            sel = photo == k
+            if not sel.any():
+                continue
+            # The empty room takes the plane's pattern (detail) at the plane's mean
+            # albedo: the texture's own local mean holds what stood there (a sofa's
+            # shadow, a rug). The mean, not the cluster's robust albedo, which follows
+            # a patterned floor's median (docs/edit.md, "Photo textures").
+            detail, level = model.texture_detail(k)
+            image = write_exr(
+                work / f"room_texture_{tex.name}.exr", np.clip(detail * level, 0.0, 0.95)
+            )
+            scene[f"room_texture_{tex.name}"] = _photo_textured_shape(
+                work / f"room_texture_{tex.name}.ply", sv, sf[sel], tex, image.resolve(), True
+            )
+    keep = keep & (photo < 0)
     for lab in np.unique(face_label[keep]):
         label = names.get(int(lab), "wall")
         sel = keep & (face_label == lab)

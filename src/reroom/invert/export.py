@@ -711,4 +711,11 @@ def write_outputs(
         "pictures": pics,
         "warnings": result.warnings,
     }
+    if getattr(result, "textures", None):
+        from reroom.invert.textures import write_textures
+
+        textures, stats = result.textures
+        scene["textures"] = write_textures(textures, out)
+        report["textures"] = {k: v for k, v in stats.items() if k != "notes"}
+        atomic_write_json(out / "report.json", report)
     return atomic_write_json(out / "scene.json", scene)

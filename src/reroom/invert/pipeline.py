@@ -136,6 +136,13 @@ class InvertOptions:
         solved profile as ``profile_solved`` and gives in ``profile`` (used for power,
         IES files, pictures and rendering) those bins interpolated from the well-seen
         ones.
+    textures : bool
+        Albedo textures of the floor, ceiling and wall planes from the photos
+        (:mod:`reroom.invert.textures`): ``textures/<plane>.exr`` and ``scene.json``'s
+        ``textures``, used by the renderer instead of the per-vertex albedo on those
+        surfaces. Needs ``layout.json`` and ``hdr/exposures.json``.
+    texel : float or None
+        Their texel size in metres (None: the median pixel footprint, 0.5-5 cm).
     window_photos : bool
         Render windows from the photos: ``window_<name>.exr`` shows, within each solved
         cube cell, the detail of the pixels that looked out through the opening, with
@@ -189,6 +196,8 @@ class InvertOptions:
     near_distance: float = 0.05
     near_max_fraction: float = 0.15
     min_bin_support: float = 0.01
+    textures: bool = True
+    texel: float | None = None
     window_photos: bool = True
     refine_points: bool = True
     refine_max_shift: float = 0.3
@@ -243,6 +252,7 @@ class InvertResult:
     out_dir: Path
     problem: InverseProblem | None = None
     problem_vertices: np.ndarray | None = None
+    textures: list | None = None
 
 
 def _require(path: Path, what: str) -> Path:
@@ -631,6 +641,14 @@ def run_invert(
             f"{int(nonphys.sum())} vertices ({nonphys.mean():.1%} of the observed) have a "
             "non-physical albedo > 1 (flagged, not clipped)"
         )
+    textures = None
+    if options.textures:
+        t = time.perf_counter()
+        textures = _surface_textures(
+            scan, mesh, labels, receivers, indirect, transfer, blocks, result, albedo,
+            caster, options, notes, radiance_override is not None, progress,
+        )  # fmt: skip
+        timings["textures"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t0
     res = InvertResult(
         solve=result,
@@ -646,6 +664,7 @@ def run_invert(
         out_dir=out,
         problem=problem,
         problem_vertices=receivers[rows],
+        textures=textures,
     )
     meta = {
         "scan": str(scan),
@@ -665,6 +684,60 @@ def run_invert(
         warnings.simplefilter("ignore", RuntimeWarning)
         write_outputs(res, mesh, out, meta, pictures=options.pictures)
     return res
+
+
+def _surface_textures(
+    scan: Path,
+    mesh,
+    labels: np.ndarray,
+    receivers: np.ndarray,
+    indirect: np.ndarray,
+    transfer,
+    blocks: list[LightBlock],
+    result,
+    albedo: np.ndarray,
+    caster,
+    options: InvertOptions,
+    notes: list[str],
+    evaluation_radiance: bool,
+    progress,
+):
+    """The photo textures of the floor, ceiling and walls (None, with a note, when the
+    scan lacks what they need)."""
+    from reroom.errors import ReroomError
+    from reroom.invert.textures import photo_textures
+    from reroom.io.jsonfile import read_json
+
+    if evaluation_radiance:
+        notes.append("textures: not made (solved with another radiance than the photos')")
+        return None
+    layout_path = scan / "layout" / "layout.json"
+    if not layout_path.is_file():
+        notes.append(f"textures: not made ({layout_path} is missing)")
+        return None
+    rotation = np.asarray(
+        read_json(layout_path, "run `reroom layout SCAN` first").get("rotation", np.eye(3)), float
+    )
+    intens = result.intensity_vector(blocks)
+    irradiance = np.full((len(mesh.vertices), 3), np.nan)
+    irradiance[receivers] = indirect + (np.asarray(transfer @ intens) if len(intens) else 0.0)
+    try:
+        textures, stats = photo_textures(
+            scan,
+            mesh,
+            labels,
+            rotation,
+            irradiance,
+            albedo,
+            texel=options.texel,
+            caster=caster,
+            progress=None if progress is None else (lambda d, n: progress("invert textures", d, n)),
+        )
+    except (ReroomError, OSError, ValueError) as exc:
+        notes.append(f"textures: not made ({exc})")
+        return None
+    notes.extend(stats["notes"])
+    return textures, stats
 
 
 def _refine_point_lights(

@@ -48,6 +48,7 @@ import numpy as np
 
 from reroom.errors import ReroomError
 from reroom.invert.basis import CubemapBasis
+from reroom.invert.photos import frame_scale, read_frame_scales, scan_response
 from reroom.invert.windows import WindowOpening, rays_through_windows
 
 __all__ = [
@@ -159,34 +160,6 @@ class _Accumulator:
         )
 
 
-def _read_exposures(scan: Path) -> tuple[dict, list[Any]]:
-    from reroom.hdr.exposures import frame_scales, read_exposures
-
-    doc = read_exposures(scan)
-    try:
-        return doc, frame_scales(doc)
-    except (ValueError, KeyError, TypeError) as exc:
-        path = scan / "hdr" / "exposures.json"
-        raise ReroomError(f"{path}: cannot read the frame exposures ({exc!r})") from exc
-
-
-def _response(doc: dict, meta: dict, note) -> np.ndarray:
-    """The HDR stage's inverse response: the curve it names in ``exposures.json``."""
-    from reroom.hdr.linearize import response_lut
-
-    name = doc.get("response")
-    if not isinstance(name, str) or name.startswith("user curve"):
-        spec = doc.get("options", {}).get("response", "auto")
-        if not isinstance(spec, str) or spec.startswith("user curve"):
-            note(
-                "window photos: the HDR stage used a curve given as numbers; linearised "
-                "with the scan's own ('auto') instead"
-            )
-            spec = "auto"
-        return response_lut(spec, meta)
-    return response_lut(name, meta)
-
-
 def _interior(mask: np.ndarray) -> np.ndarray:
     """Pixels whose 4 neighbours have the same (non-negative) label: no mixed rim pixels."""
     out = mask >= 0
@@ -271,7 +244,7 @@ def observe_windows(
     openings: list[WindowOpening],
     *,
     height: int = 128,
-    max_rays_per_frame: int = 250_000,
+    max_rays_per_frame: int = 60_000,
     saturation_level: int = 255,
     erode: bool = True,
     caster=None,
@@ -315,8 +288,8 @@ def observe_windows(
     scan_dir = Path(scan_dir)
     notes: list[str] = []
     scan = load_scan(scan_dir, check_images=False)
-    doc, scales = _read_exposures(scan_dir)
-    lut = _response(doc, scan.meta, notes.append)
+    doc, scales = read_frame_scales(scan_dir)
+    lut = scan_response(doc, scan.meta, notes.append)
     caster = caster if caster is not None else RayCaster(mesh)
     acc = [_Accumulator(height) for _ in openings]
     stats: dict[str, Any] = {
@@ -328,12 +301,8 @@ def observe_windows(
         "saturated": [0] * len(openings),
     }
     for j, frame in enumerate(scan.frames):
-        scale = scales[j] if j < len(scales) else None
-        if scale is None or not np.all(np.isfinite(np.asarray(scale, float))):
-            stats["frames_no_exposure"] += 1
-            continue
-        scale = np.broadcast_to(np.asarray(scale, float), (3,))
-        if np.any(scale <= 0):
+        scale = frame_scale(scales, j)
+        if scale is None:
             stats["frames_no_exposure"] += 1
             continue
         k = frame.intrinsics

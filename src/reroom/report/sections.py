@@ -344,9 +344,39 @@ def materials_section(run: Path, scan: Scan) -> str:
             MAX_WIDTH,
             width=2 * THUMB,
         )
+    html += _textures_html(inv, doc)
     warns = doc.get("warnings") or []
     if warns:
         html += "<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns[:12]) + "</ul>"
+    return html
+
+
+def _textures_html(inv: Path, doc: dict) -> str:
+    """The photo textures of the planes: a table, and the floor's texture."""
+    entries = doc.get("textures") or []
+    if not entries:
+        return ""
+    from reroom.io.images import linear_to_srgb, read_exr
+
+    html = "<p>Albedo textures of the room's planes from the photos (docs/invert.md).</p>"
+    html += table(
+        ["plane", "texel (cm)", "texels", "seen by a photo"],
+        [
+            [
+                e["name"],
+                100 * e["texel"],
+                f"{e['width']} x {e['height']}",
+                f"{100 * e['observed_fraction']:.0f} %",
+            ]
+            for e in entries
+        ],
+    )
+    floor = next((e for e in entries if e["label"] == "floor"), None)
+    if floor is not None and (inv / floor["file"]).is_file():
+        # rows flipped: +y up, as the floor plan
+        alb = np.clip(read_exr(inv / floor["file"])[::-1, :, :3], 0.0, 1.0)
+        picture = (255 * linear_to_srgb(alb)).round().astype(np.uint8)
+        html += figure(picture, f"{floor['name']}: albedo texture", MAX_WIDTH, width=THUMB)
     return html
 
 

@@ -1,0 +1,210 @@
+"""Albedo textures of the room's planes from the photos (reroom.invert.textures)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.invert.textures import (
+    SurfaceTexture,
+    match_planes,
+    photo_textures,
+    planar_groups,
+    read_textures,
+    write_textures,
+)
+from reroom.rays import RayCaster
+from reroom.scan import Intrinsics, look_at, write_scan
+from reroom.scan.camera import Frame
+
+SIZE = (4.0, 3.0, 2.5)
+CELL = 0.5  # checker cells on the floor (metres)
+DARK, LIGHT = 0.2, 0.6  # the floor's two albedos
+WALL, CEILING = 0.5, 2.0  # the ceiling is brighter than white: saturated in every frame
+
+
+def _grid(origin, u, v, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
+    """A planar grid of ``nu x nv`` cells (vertices, faces), unwelded from the others."""
+    a, b = np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1), indexing="ij")
+    pts = np.asarray(origin) + a.reshape(-1, 1) * np.asarray(u) + b.reshape(-1, 1) * np.asarray(v)
+    idx = np.arange((nu + 1) * (nv + 1)).reshape(nu + 1, nv + 1)
+    q = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+    return pts, np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+
+
+def _room() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Box room as six unwelded grids (10 cm), labelled per plane, plus a board tilted
+    20 degrees against the x = 4 wall that the layout also calls wall."""
+    x, y, z = SIZE
+    parts = [
+        (_grid([0, 0, 0], [x, 0, 0], [0, y, 0], 40, 30), 1),  # floor
+        (_grid([0, 0, z], [x, 0, 0], [0, y, 0], 40, 30), 2),  # ceiling
+        (_grid([0, 0, 0], [x, 0, 0], [0, 0, z], 40, 25), 0),  # y = 0
+        (_grid([0, y, 0], [x, 0, 0], [0, 0, z], 40, 25), 0),  # y = 3
+        (_grid([0, 0, 0], [0, y, 0], [0, 0, z], 30, 25), 0),  # x = 0
+        (_grid([x, 0, 0], [0, y, 0], [0, 0, z], 30, 25), 0),  # x = 4
+        (_grid([x - 0.3, 1.0, 0.0], [0, 0.6, 0], [0.3, 0, 0.8], 6, 8), 0),  # the board
+    ]
+    verts, faces, labels = [], [], []
+    n = 0
+    for (v, f), lab in parts:
+        verts.append(v)
+        faces.append(f + n)
+        labels.append(np.full(len(v), lab, np.uint8))
+        n += len(v)
+    mesh = trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
+    return mesh, np.concatenate(labels)
+
+
+def _floor_albedo(p: np.ndarray) -> np.ndarray:
+    odd = (np.floor(p[:, 0] / CELL) + np.floor(p[:, 1] / CELL)) % 2 == 1
+    return np.where(odd, LIGHT, DARK)
+
+
+def _radiance(points: np.ndarray) -> np.ndarray:
+    """Radiance under a uniform irradiance of pi: the albedo (walls and board WALL)."""
+    out = np.full(len(points), WALL)
+    floor = points[:, 2] < 1e-4
+    out[floor] = _floor_albedo(points[floor])
+    out[points[:, 2] > SIZE[2] - 1e-4] = CEILING
+    return out
+
+
+@pytest.fixture(scope="module")
+def texture_scan(tmp_path_factory) -> tuple[Path, trimesh.Trimesh, np.ndarray]:
+    root = tmp_path_factory.mktemp("texscan")
+    mesh, labels = _room()
+    intr = Intrinsics.from_fov(160, 120, 70.0)
+    poses = [
+        look_at([0.5, 0.5, 1.6], [2.5, 1.8, 0.0]),
+        look_at([3.5, 2.5, 1.7], [1.5, 1.0, 0.0]),
+        look_at([2.0, 1.5, 2.0], [2.0, 1.4, 0.0]),
+        look_at([2.0, 1.5, 1.2], [2.6, 2.0, 2.5]),  # the ceiling and the y = 3 wall
+    ]
+    scales = [1.0, 0.8, 1.2, 1.0]
+    caster = RayCaster(mesh)
+    images = []
+    for pose, s in zip(poses, scales, strict=True):
+        o, d = Frame(0, root / "x.png", pose, intr).pixel_rays()
+        hits = caster.intersect(o, d, tmin=caster.eps)
+        linear = np.clip(_radiance(hits.points) * s, 0.0, 1.0)
+        code = np.round(255.0 * linear ** (1 / 2.2)).astype(np.uint8)
+        images.append(np.repeat(code.reshape(intr.height, intr.width, 1), 3, axis=2))
+    write_scan(root, mesh, intr, poses, images, meta={"reroom": {"response": "gamma2.2"}})
+    (root / "hdr").mkdir()
+    frames = [{"index": j, "scale": [s] * 3} for j, s in enumerate(scales)]
+    (root / "hdr" / "exposures.json").write_text(
+        json.dumps({"response": "gamma2.2", "frames": frames})
+    )
+    return root, mesh, labels
+
+
+def test_planes_of_a_box_room_leave_out_a_tilted_board():
+    mesh, labels = _room()
+    planes, face_plane = planar_groups(mesh.vertices, mesh.faces, labels, np.eye(3))
+    got = sorted((p["label"], p["axis"], round(p["offset"], 3)) for p in planes)
+    assert got == [
+        ("ceiling", 2, 2.5),
+        ("floor", 2, 0.0),
+        ("wall", 0, 0.0),
+        ("wall", 0, 4.0),
+        ("wall", 1, 0.0),
+        ("wall", 1, 3.0),
+    ]
+    board = np.arange(len(mesh.faces)) >= len(mesh.faces) - 2 * 6 * 8
+    assert np.all(face_plane[board] == -1)
+    assert np.all(face_plane[~board] >= 0)
+
+
+def test_textures_reproduce_the_photos_albedo(texture_scan):
+    root, mesh, labels = texture_scan
+    irradiance = np.full((len(mesh.vertices), 3), np.pi)
+    textures, stats = photo_textures(root, mesh, labels, np.eye(3), irradiance, texel=0.05)
+    by = {(t.label, t.axis, round(t.offset, 2)): t for t in textures}
+    assert stats["frames_used"] == 4 and stats["samples"] > 10000
+    # The ceiling is saturated in every frame: no texture, and a note that says so.
+    assert ("ceiling", 2, 2.5) not in by
+    assert stats["saturated"] > 1000
+    assert any("ceiling" in n for n in stats["notes"])
+    floor = by[("floor", 2, 0.0)]
+    assert floor.observed_fraction > 0.5
+    # Texel centres at least a texel from a checker edge: the checker, to 8-bit steps.
+    h, w = floor.shape
+    cu = floor.origin[0] + (np.arange(w) + 0.5) * floor.texel
+    cv = floor.origin[1] + (np.arange(h) + 0.5) * floor.texel
+    uu, vv = np.meshgrid(cu, cv)
+    inner = (np.abs(uu / CELL - np.round(uu / CELL)) * CELL > 0.06) & (
+        np.abs(vv / CELL - np.round(vv / CELL)) * CELL > 0.06
+    )
+    ok = inner & (floor.count > 0) & (uu > 0) & (uu < 4) & (vv > 0) & (vv < 3)
+    assert ok.sum() > 500
+    want = _floor_albedo(np.c_[uu[ok], vv[ok]])
+    np.testing.assert_allclose(floor.albedo[ok][:, 0], want, rtol=0.03)
+    # Without per-vertex albedo the local mean is the photos' own, so the detail is the
+    # pattern about it: above 1 on light cells, below on dark ones.
+    light = want == LIGHT
+    assert floor.detail[ok][light, 0].mean() > 1.2 and floor.detail[ok][~light, 0].mean() < 0.8
+    # The walls: uniform; the board's pixels are not on the x = 4 wall's texture.
+    # (a ray that grazes the floor corner may see the floor: a texel or two at the foot)
+    wall = by[("wall", 0, 4.0)]
+    seen = wall.count > 0
+    assert np.mean(np.abs(wall.albedo[seen] - WALL) < 0.03 * WALL) > 0.995
+
+
+def test_local_mean_follows_the_per_vertex_albedo(texture_scan):
+    root, mesh, labels = texture_scan
+    irradiance = np.full((len(mesh.vertices), 3), np.pi)
+    vertex = np.full((len(mesh.vertices), 3), 0.6)  # walls 20 % above what the photos say
+    textures, _ = photo_textures(root, mesh, labels, np.eye(3), irradiance, vertex, texel=0.05)
+    wall = next(t for t in textures if t.label == "wall" and t.axis == 1 and t.offset > 1)
+    seen = wall.count > 0
+    np.testing.assert_allclose(wall.albedo[seen], 0.6, rtol=0.03)
+    np.testing.assert_allclose(wall.detail[seen], 1.0, atol=0.03)
+
+
+def test_bad_inputs_are_named(texture_scan, tmp_path: Path):
+    root, mesh, labels = texture_scan
+    with pytest.raises(ValueError, match="irradiance has shape"):
+        photo_textures(root, mesh, labels, np.eye(3), np.ones((3, 3)))
+    # No labelled plane: no textures, and a note.
+    textures, stats = photo_textures(
+        root, mesh, np.full(len(labels), 255), np.eye(3), np.ones((len(labels), 3))
+    )
+    assert textures == [] and "no floor, ceiling or wall plane" in stats["notes"][0]
+
+
+def test_write_read_round_trip_and_plane_matching(tmp_path: Path):
+    rng = np.random.default_rng(0)
+    tex = SurfaceTexture(
+        label="floor",
+        axis=2,
+        offset=0.0,
+        origin=(-0.1, -0.2),
+        texel=0.1,
+        albedo=rng.uniform(0, 1, (5, 7, 3)).astype(np.float32),
+        detail=rng.uniform(0.5, 1.5, (5, 7, 3)).astype(np.float32),
+        count=rng.integers(0, 3, (5, 7)),
+        rotation=np.eye(3),
+        name="floor_0",
+    )
+    entries = write_textures([tex], tmp_path)
+    (back,) = read_textures(entries, tmp_path)
+    np.testing.assert_allclose(back.albedo, tex.albedo, atol=1e-6)
+    np.testing.assert_allclose(back.detail, tex.detail, atol=1e-6)
+    np.testing.assert_array_equal(back.count, tex.count)
+    # Texture coordinates: the corner is (0, 0), the far corner (1, 1).
+    uv = back.texture_coords(np.array([[-0.1, -0.2, 0.0], [0.6, 0.3, 0.0]]))
+    np.testing.assert_allclose(uv, [[0, 0], [1, 1]], atol=1e-12)
+    # A floor face 5 cm above the plane matches; a wall face or a face 0.5 m up does not.
+    v = np.array([[0, 0, 0.05], [1, 0, 0.05], [0, 1, 0.05], [0, 0, 0.5], [1, 0, 0.5], [0, 1, 0.5]])
+    f = np.array([[0, 1, 2], [3, 4, 5], [0, 1, 2]])
+    got = match_planes([back], v, f, np.array(["floor", "floor", "wall"], dtype=object))
+    assert got.tolist() == [0, -1, -1]
+    # A mis-sized file is named.
+    entries[0]["width"] = 8
+    with pytest.raises(Exception, match="floor_0.exr"):
+        read_textures(entries, tmp_path)
