@@ -284,3 +284,53 @@ def portal_samples(
                 direction[count, 0], direction[count, 1], direction[count, 2] = dx, dy, dz
                 count += 1
     return owner, start, seg, stop, value, direction, count
+
+
+@nb.njit(cache=True)
+def area_samples(
+    points: np.ndarray,
+    normals: np.ndarray,
+    tri: np.ndarray,
+    front: np.ndarray,
+    share3: np.ndarray,
+    mean_share: np.ndarray,
+    face: np.ndarray,
+    r1: np.ndarray,
+    r2: np.ndarray,
+    samples: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Area-light samples of :func:`reroom.invert.area.area_light_transfer`, one pass.
+
+    For receiver ``i`` and sample ``k`` (row ``r = i * samples + k``): the point ``y`` on
+    triangle ``face[r]`` at the square-root barycentrics of ``(r1[r], r2[r])`` and the
+    integrand ``w cos_x cos_y / d^2`` (0 behind either surface), ``w`` the barycentric
+    light share over the triangle's mean share. Returns ``(value, y)``.
+    """
+    n = points.shape[0]
+    value = np.zeros(n * samples)
+    ys = np.empty((n * samples, 3))
+    for i in range(n):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        for k in range(samples):
+            r = i * samples + k
+            f = face[r]
+            s1 = math.sqrt(r1[r])
+            b0, b1, b2 = 1.0 - s1, s1 * (1.0 - r2[r]), s1 * r2[r]
+            yx = b0 * tri[f, 0, 0] + b1 * tri[f, 1, 0] + b2 * tri[f, 2, 0]
+            yy = b0 * tri[f, 0, 1] + b1 * tri[f, 1, 1] + b2 * tri[f, 2, 1]
+            yz = b0 * tri[f, 0, 2] + b1 * tri[f, 1, 2] + b2 * tri[f, 2, 2]
+            ys[r, 0], ys[r, 1], ys[r, 2] = yx, yy, yz
+            dx, dy, dz = yx - px, yy - py, yz - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= 0.0:
+                continue
+            dist = math.sqrt(d2)
+            cos_x = (nx * dx + ny * dy + nz * dz) / dist
+            cos_y = -(front[f, 0] * dx + front[f, 1] * dy + front[f, 2] * dz) / dist
+            if cos_x > 0.0 and cos_y > 0.0:
+                w = (b0 * share3[f, 0] + b1 * share3[f, 1] + b2 * share3[f, 2]) / mean_share[f]
+                v = w * cos_x * cos_y / d2
+                if math.isfinite(v):
+                    value[r] = v
+    return value, ys

@@ -28,6 +28,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike
 
+from reroom.invert._kernels import area_samples
 from reroom.invert.direct import receiver_arrays
 from reroom.rays import RayCaster
 
@@ -116,25 +117,19 @@ def area_light_transfer(
         # Stratified in the area CDF: every receiver samples all of a large light.
         u = (np.arange(samples)[None, :] + rng.random((m, samples))).ravel() / samples
         f = np.minimum(np.searchsorted(cdf, u), len(cdf) - 1)
-        r1 = np.sqrt(rng.random(m * samples))
+        r1 = rng.random(m * samples)
         r2 = rng.random(m * samples)
-        bary = np.stack([1.0 - r1, r1 * (1.0 - r2), r1 * r2], axis=1)
-        y = np.einsum("sk,skd->sd", bary, tri[f])
-        # Importance weight of the barycentric light share (the CDF used its mean).
-        w = np.einsum("sk,sk->s", bary, share3[f]) / mean_share[f]
-        x = np.repeat(p[b0:b1], samples, axis=0)
-        nx = np.repeat(n[b0:b1], samples, axis=0)
-        d = y - x
-        d2 = np.einsum("ij,ij->i", d, d)
-        dist = np.sqrt(d2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cos_x = np.einsum("ij,ij->i", nx, d) / dist
-            cos_y = -np.einsum("ij,ij->i", front[f], d) / dist
-            value = np.where((cos_x > 0) & (cos_y > 0), w * cos_x * cos_y / d2, 0.0)
-        value[~np.isfinite(value)] = 0.0
+        # Point on the light (square-root barycentrics) and the integrand, weighted by
+        # the barycentric light share over the mean the CDF used (a numba loop: the
+        # numpy version's (m x samples, 3, 3) temporaries took most of the time).
+        value, y = area_samples(
+            p[b0:b1], n[b0:b1], tri, front, share3, mean_share, f, r1, r2, samples
+        )
         live = np.flatnonzero(value > 0)
         if len(live):
-            start = x[live] + eps * nx[live]
+            rec = b0 + live // samples
+            nx = n[rec]
+            start = p[rec] + eps * nx
             seg = y[live] - start
             seg_len = np.linalg.norm(seg, axis=1)
             # Stop just short of the light's own surface (it would occlude itself).
