@@ -66,6 +66,11 @@ def test_first_run_makes_every_stage_and_leaves_the_scan_alone(first_run) -> Non
     assert list((out / "edits" / "paint").glob("*.png"))
     html = (out / "report.html").read_text()
     assert "paint" in html and "could not be drawn" not in html
+    # The photo textures of the planes: written by invert, shown in the report.
+    textures = json.loads((out / "invert" / "scene.json").read_text())["textures"]
+    assert "floor" in {t["label"] for t in textures}
+    assert all((out / "invert" / t["file"]).is_file() for t in textures)
+    assert "Albedo textures of the room" in html
     # Ground truth: each stage's evaluation made it into the report.
     ev = json.loads((out / "report" / "evaluation.json").read_text())
     assert set(ev) == {"hdr", "layout", "lights", "invert"}

@@ -417,6 +417,17 @@ def invert(
             "photos best; --no-refine-points keeps the positions given."
         ),
     ] = True,
+    textures: Annotated[
+        bool,
+        typer.Option(
+            help="Albedo textures of the floor, ceiling and walls from the photos "
+            "(invert/textures/; the renders use them)."
+        ),
+    ] = True,
+    texel: Annotated[
+        float | None,
+        typer.Option(help="Texel size of those textures, m (default: the pixel footprint)."),
+    ] = None,
 ) -> None:
     """Inverse rendering: light intensities and distributions, albedos (thesis ch. 5)."""
     from reroom.invert.pipeline import InvertOptions, run_invert
@@ -428,7 +439,12 @@ def invert(
         solve=SolveOptions(method=method),  # type: ignore[arg-type]
         pictures=pictures,
         refine_points=refine_points,
+        textures=textures,
+        texel=texel,
     )
+    if texel is not None and not texel > 0:
+        console.print(f"[red]error:[/] --texel must be positive, got {texel}")
+        raise typer.Exit(2)
     with _errors(), _progress() as cb:
         result = run_invert(scan, out, opts, progress=cb)
     table = Table(title="materials")
