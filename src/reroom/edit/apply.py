@@ -469,13 +469,10 @@ def _photo_texture_scan(
 
 
 def _face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Label of each face: the label of at least two of its vertices, else 'other'."""
-    fl = labels[faces]
-    out = np.full(len(faces), _OTHER, np.int64)
-    for a, b in ((0, 1), (0, 2), (1, 2)):
-        agree = fl[:, a] == fl[:, b]
-        out = np.where(agree & (out == _OTHER), fl[:, a], out)
-    return out
+    """Label of each face: the label of at least two of its vertices, else 'other' (255)."""
+    from reroom.invert.textures import face_labels
+
+    return face_labels(labels, faces)
 
 
 def _fixture_faces(

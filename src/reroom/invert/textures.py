@@ -756,6 +756,20 @@ def read_textures(
     """
     from reroom.io.images import read_exr
 
+    def texture(e: dict[str, Any], albedo, detail, count) -> SurfaceTexture:
+        return SurfaceTexture(
+            label=e["label"],
+            axis=int(e["axis"]),
+            offset=float(e["offset"]),
+            origin=(float(e["origin"][0]), float(e["origin"][1])),
+            texel=float(e["texel"]),
+            albedo=albedo,
+            detail=detail,
+            count=count,
+            rotation=np.asarray(e["rotation"], float),
+            name=e["name"],
+        )
+
     out = []
     for e in entries:
         path = Path(invert_dir) / e["file"]
@@ -764,20 +778,7 @@ def read_textures(
             if not path.is_file():
                 raise ScanError(path, "texture file is missing")
             zero = np.broadcast_to(np.float32(0.0), (h, w, 3))
-            out.append(
-                SurfaceTexture(
-                    label=e["label"],
-                    axis=int(e["axis"]),
-                    offset=float(e["offset"]),
-                    origin=(float(e["origin"][0]), float(e["origin"][1])),
-                    texel=float(e["texel"]),
-                    albedo=zero,
-                    detail=zero,
-                    count=np.broadcast_to(np.int64(0), (h, w)),
-                    rotation=np.asarray(e["rotation"], float),
-                    name=e["name"],
-                )
-            )
+            out.append(texture(e, zero, zero, np.broadcast_to(np.int64(0), (h, w))))
             continue
         albedo = read_exr(path)[..., :3]
         if albedo.shape[:2] != (h, w):
@@ -796,18 +797,5 @@ def read_textures(
             if e.get("detail_file") and detail_path.is_file()
             else np.ones_like(albedo)
         )
-        out.append(
-            SurfaceTexture(
-                label=e["label"],
-                axis=int(e["axis"]),
-                offset=float(e["offset"]),
-                origin=(float(e["origin"][0]), float(e["origin"][1])),
-                texel=float(e["texel"]),
-                albedo=albedo,
-                detail=detail,
-                count=count,
-                rotation=np.asarray(e["rotation"], float),
-                name=e["name"],
-            )
-        )
+        out.append(texture(e, albedo, detail, count))
     return out
