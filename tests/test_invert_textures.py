@@ -208,3 +208,19 @@ def test_write_read_round_trip_and_plane_matching(tmp_path: Path):
     entries[0]["width"] = 8
     with pytest.raises(Exception, match="floor_0.exr"):
         read_textures(entries, tmp_path)
+
+
+def test_an_unreadable_frame_is_skipped_with_a_warning(texture_scan, tmp_path: Path):
+    import shutil
+
+    root, mesh, labels = texture_scan
+    copy = tmp_path / "scan"
+    shutil.copytree(root, copy)
+    frames = json.loads((copy / "transforms.json").read_text())["frames"]
+    bad = copy / frames[0]["file_path"]
+    bad.write_bytes(b"not a png")
+    irradiance = np.full((len(mesh.vertices), 3), np.pi)
+    with pytest.warns(UserWarning, match="cannot read it"):
+        textures, stats = photo_textures(copy, mesh, labels, np.eye(3), irradiance, texel=0.05)
+    assert stats["frames_unreadable"] == [str(bad)]
+    assert stats["frames_used"] == 3 and any(t.label == "floor" for t in textures)
