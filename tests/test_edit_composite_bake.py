@@ -122,6 +122,12 @@ def test_baked_floor_under_a_point_light_matches_closed_form(mi, tmp_path) -> No
     want = albedo / math.pi * INTENSITY * (d[:, 2] / np.sqrt(r2)) / r2
     np.testing.assert_allclose(baked.radiance[:, 0], want, rtol=1e-3)
     assert np.all(baked.stderr < 1e-3 * want.max())  # NEE of a point light is exact
+    # A point 5 cm above the floor is not on a surface: it reads 0, and a warning says so.
+    with pytest.warns(UserWarning, match="1 of 2 points have no surface"):
+        off = bake_vertex_radiance(
+            scene, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.05]]), np.tile([0.0, 0.0, 1.0], (2, 1))
+        )
+    assert off.radiance[1].max() == 0.0 and off.radiance[0].max() > 0.0
 
     mesh = trimesh.Trimesh(verts, [[0, 1, 10], [0, 10, 9]], process=False)
     files = export_baked(mesh, baked, tmp_path, name="floor")

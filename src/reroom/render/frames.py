@@ -123,6 +123,40 @@ class FrameRenderer:
         return img
 
 
+def _warn_off_surface(
+    mi, scene: Any, points: np.ndarray, normals: np.ndarray, offset: float, jitter: float
+) -> None:
+    """Warn when probe points have no surface within ``offset`` behind them: each probe
+    ray stops at ``2 offset`` (its first hit must be the point itself), so such a point
+    reads as 0 radiance, silently (warned when at least 1 % of them do). Four rays a point, shifted ``jitter`` sideways as the
+    samples are (a ray aimed exactly at a mesh vertex can slip between its triangles)."""
+    from reroom.rays.sampling import orthonormal_basis
+
+    if len(points) == 0:
+        return
+    t1, t2 = orthonormal_basis(normals)
+    hit = np.zeros(len(points), dtype=bool)
+    for side in (t1, -t1, t2, -t2):
+        o = (points + offset * normals + jitter * side).astype(np.float32)
+        d = (-normals).astype(np.float32)
+        ray = mi.Ray3f(mi.Point3f(*o.T), mi.Vector3f(*d.T))
+        ray.maxt = 2.0 * offset
+        hit |= np.asarray(scene.ray_test(ray), dtype=bool).reshape(-1)[: len(points)]
+    # A few misses are mesh corners (a diagonal normal aimed at the corner itself); many
+    # are points given off their surface.
+    if (~hit).sum() >= max(1.0, 0.01 * len(points)):
+        import warnings
+
+        miss = np.flatnonzero(~hit)
+        warnings.warn(
+            f"probe_radiance: {len(miss)} of {len(points)} points have no surface within "
+            f"{offset:g} m behind them along their normal (first: point {int(miss[0])} at "
+            f"{np.round(points[miss[0]], 4).tolist()}); they read as 0 radiance. Give points "
+            "on the surface.",
+            stacklevel=3,
+        )
+
+
 def probe_radiance(
     scene: Any,
     points: np.ndarray,
@@ -148,7 +182,9 @@ def probe_radiance(
     let it slip through, which would read as zero radiance.
 
     Returns ``(mean, stderr)``, each ``(N, 3)``: the Monte-Carlo estimate and
-    its standard error (from the per-sample variance).
+    its standard error (from the per-sample variance). Points must lie on a surface:
+    one with none within ``offset`` behind it reads 0, and a warning names the first
+    when at least 1 % of the points do.
     """
     mi = mitsuba()
     import drjit as dr
@@ -159,6 +195,7 @@ def probe_radiance(
     normals = np.asarray(normals, np.float64)
     normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     n = len(points)
+    _warn_off_surface(mi, scene, points, normals, offset, jitter)
     rng = np.random.default_rng(seed)
     integrator = scene.integrator()
     total = np.zeros((n, 3))
