@@ -224,3 +224,22 @@ def test_an_unreadable_frame_is_skipped_with_a_warning(texture_scan, tmp_path: P
         textures, stats = photo_textures(copy, mesh, labels, np.eye(3), irradiance, texel=0.05)
     assert stats["frames_unreadable"] == [str(bad)]
     assert stats["frames_used"] == 3 and any(t.label == "floor" for t in textures)
+
+
+def test_unseen_texels_continue_a_striped_pattern():
+    from reroom.invert.textures import _continue_pattern
+
+    rng = np.random.default_rng(3)
+    h, w = 24, 40
+    stripes = rng.uniform(0.6, 1.4, h)  # one value per row: planks along u
+    detail = np.repeat(np.repeat(stripes[:, None], w, axis=1)[..., None], 3, axis=2)
+    seen = np.ones((h, w), bool)
+    seen[6:15, 12:25] = False  # under a sofa
+    got = _continue_pattern(np.where(seen[..., None], detail, 1.0), seen)
+    np.testing.assert_allclose(got, detail)
+    # The same along columns; and no dominant direction (noise): unseen stays 1.
+    got_t = _continue_pattern(np.where(seen.T[..., None], detail.transpose(1, 0, 2), 1.0), seen.T)
+    np.testing.assert_allclose(got_t, detail.transpose(1, 0, 2))
+    noise = rng.uniform(0.8, 1.2, (h, w, 3))
+    flat = _continue_pattern(np.where(seen[..., None], noise, 1.0), seen)
+    assert np.all(flat[~seen] == 1.0)

@@ -346,6 +346,41 @@ def _fill(values: np.ndarray, seen: np.ndarray, radius: int) -> np.ndarray:
     return out
 
 
+def _continue_pattern(detail: np.ndarray, seen: np.ndarray, ratio: float = 1.5) -> np.ndarray:
+    """Unseen texels of a striped pattern (a plank floor) continue the stripes.
+
+    Where the pattern changes ``ratio`` times more across one texture axis than along
+    the other (mean absolute step between seen neighbours), each unseen texel takes the
+    nearest seen texel *along* the stripes, in its row (or column); otherwise, and where
+    a row has no seen texel, it stays 1 (the plane's mean). Under a sofa the planks then
+    run on instead of leaving a flat patch.
+    """
+    lum = detail.mean(axis=-1)
+    pair_u = seen[:, 1:] & seen[:, :-1]
+    pair_v = seen[1:] & seen[:-1]
+    if pair_u.sum() < 100 or pair_v.sum() < 100 or seen.all() or not seen.any():
+        return detail
+    step_u = float(np.abs(np.diff(lum, axis=1))[pair_u].mean())  # along rows
+    step_v = float(np.abs(np.diff(lum, axis=0))[pair_v].mean())  # along columns
+    if max(step_u, step_v) < ratio * min(step_u, step_v):
+        return detail
+    along_rows = step_u < step_v  # stripes run along the rows (u)
+    d = detail if along_rows else detail.transpose(1, 0, 2)
+    m = seen if along_rows else seen.T
+    h, w = m.shape
+    cols = np.arange(w)
+    # index of the nearest seen texel to the left / right in each row
+    left = np.maximum.accumulate(np.where(m, cols[None, :], -1), axis=1)
+    right = np.minimum.accumulate(np.where(m, cols[None, :], w)[:, ::-1], axis=1)[:, ::-1]
+    use_left = (left >= 0) & ((right >= w) | (cols[None, :] - left <= right - cols[None, :]))
+    src = np.where(use_left, left, right)
+    fill = ~m & (src >= 0) & (src < w)
+    rows = np.broadcast_to(np.arange(h)[:, None], (h, w))
+    out = d.copy()
+    out[fill] = d[rows[fill], src[fill]]
+    return out if along_rows else out.transpose(1, 0, 2)
+
+
 def _finish(
     photo_sum: np.ndarray,
     vertex_sum: np.ndarray,
@@ -381,6 +416,7 @@ def _finish(
     with np.errstate(invalid="ignore", divide="ignore"):
         detail = np.where(local > 0, photo / local, 1.0)
     detail = np.clip(np.where(seen[..., None], detail, 1.0), 0.25, 2.0)
+    detail = _continue_pattern(detail, seen)
     return _fill(albedo, seen, fill_radius), detail
 
 
