@@ -14,6 +14,7 @@ from reroom.invert.textures import (
     match_planes,
     photo_textures,
     planar_groups,
+    read_texture_planes,
     read_textures,
     write_textures,
 )
@@ -170,6 +171,8 @@ def test_bad_inputs_are_named(texture_scan, tmp_path: Path):
     root, mesh, labels = texture_scan
     with pytest.raises(ValueError, match="irradiance has shape"):
         photo_textures(root, mesh, labels, np.eye(3), np.ones((3, 3)))
+    with pytest.raises(ValueError, match="texel must be positive"):
+        photo_textures(root, mesh, labels, np.eye(3), np.ones((len(labels), 3)), texel=0.0)
     # No labelled plane: no textures, and a note.
     textures, stats = photo_textures(
         root, mesh, np.full(len(labels), 255), np.eye(3), np.ones((len(labels), 3))
@@ -204,10 +207,16 @@ def test_write_read_round_trip_and_plane_matching(tmp_path: Path):
     f = np.array([[0, 1, 2], [3, 4, 5], [0, 1, 2]])
     got = match_planes([back], v, f, np.array(["floor", "floor", "wall"], dtype=object))
     assert got.tolist() == [0, -1, -1]
-    # A mis-sized file is named.
+    # The renderer's planes, read without the images: the same mapping.
+    (plane,) = read_texture_planes(entries, tmp_path)
+    np.testing.assert_allclose(plane.texture_coords(v), back.texture_coords(v))
+    # A mis-sized file is named, and so is a missing one.
     entries[0]["width"] = 8
     with pytest.raises(Exception, match="floor_0.exr"):
         read_textures(entries, tmp_path)
+    (tmp_path / "textures" / "floor_0.exr").unlink()
+    with pytest.raises(Exception, match="floor_0.exr.*missing"):
+        read_texture_planes(entries, tmp_path)
 
 
 def test_an_unreadable_frame_is_skipped_with_a_warning(texture_scan, tmp_path: Path):

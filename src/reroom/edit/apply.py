@@ -133,14 +133,14 @@ class RoomModel:
 
     @cached_property
     def photo_textures(self) -> list[tuple[Any, Path]]:
-        """``(SurfaceTexture, its EXR path)`` of each photo texture in ``scene.json``."""
-        from reroom.invert.textures import read_textures
+        """``(TexturePlane, its EXR path)`` of each photo texture in ``scene.json``."""
+        from reroom.invert.textures import read_texture_planes
 
         entries = self.doc.get("textures") or []
         if not entries:
             return []
-        # The renderer reads the images itself: only the mapping is needed here.
-        textures = read_textures(entries, self.invert_dir, images=False)
+        # The renderer reads the images itself: only the planes are needed here.
+        textures = read_texture_planes(entries, self.invert_dir)
         return [
             (t, (self.invert_dir / e["file"]).resolve())
             for t, e in zip(textures, entries, strict=True)

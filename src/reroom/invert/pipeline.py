@@ -705,6 +705,7 @@ def _surface_textures(
     """The photo textures of the floor, ceiling and walls (None, with a note, when the
     scan lacks what they need)."""
     from reroom.errors import ReroomError
+    from reroom.invert.solve import model_irradiance
     from reroom.invert.textures import photo_textures
     from reroom.io.jsonfile import read_json
 
@@ -718,9 +719,8 @@ def _surface_textures(
     rotation = np.asarray(
         read_json(layout_path, "run `reroom layout SCAN` first").get("rotation", np.eye(3)), float
     )
-    intens = result.intensity_vector(blocks)
     irradiance = np.full((len(mesh.vertices), 3), np.nan)
-    irradiance[receivers] = indirect + (np.asarray(transfer @ intens) if len(intens) else 0.0)
+    irradiance[receivers] = model_irradiance(indirect, transfer, blocks, result)
     try:
         textures, stats = photo_textures(
             scan,

@@ -64,6 +64,7 @@ __all__ = [
     "SolveOptions",
     "SolveResult",
     "indirect_weights",
+    "model_irradiance",
     "per_vertex_albedo",
     "solve_lighting",
 ]
@@ -1045,6 +1046,17 @@ def solve_lighting(
     )
 
 
+def model_irradiance(
+    indirect: np.ndarray,
+    transfer: sp.csr_matrix | np.ndarray,
+    lights: list[LightBlock],
+    result: SolveResult,
+) -> np.ndarray:
+    """``(n, 3)`` the solved model's irradiance ``E_ind + F . I`` at the rows of ``transfer``."""
+    intens = result.intensity_vector(lights)
+    return np.asarray(indirect + (transfer @ intens if len(intens) else 0.0))
+
+
 def per_vertex_albedo(
     radiance: np.ndarray,
     indirect: np.ndarray,
@@ -1080,9 +1092,7 @@ def per_vertex_albedo(
     nonphysical : ndarray of bool, shape (n,)
         Vertices with some channel above 1.
     """
-    intens = result.intensity_vector(lights)
-    irradiance = indirect + (transfer @ intens if len(intens) else 0.0)
-    irradiance = np.asarray(irradiance)
+    irradiance = model_irradiance(indirect, transfer, lights, result)
     with np.errstate(divide="ignore", invalid="ignore"):
         albedo = np.where(irradiance > min_irradiance, np.pi * radiance / irradiance, np.nan)
     nonphysical = np.any(albedo > 1.0, axis=1)

@@ -46,11 +46,13 @@ from reroom.errors import ReroomError, ScanError
 __all__ = [
     "TEXTURED_LABELS",
     "SurfaceTexture",
+    "TexturePlane",
     "auto_texel",
     "face_labels",
     "match_planes",
     "photo_textures",
     "planar_groups",
+    "read_texture_planes",
     "read_textures",
     "write_textures",
 ]
@@ -60,6 +62,42 @@ TEXTURED_LABELS = {"wall": 0, "floor": 1, "ceiling": 2}
 _OTHER = 255
 #: The two in-plane aligned axes of a plane whose normal is along aligned axis ``a``.
 _PLANE_AXES = {0: (1, 2), 1: (0, 2), 2: (0, 1)}
+
+
+@dataclass(frozen=True)
+class TexturePlane:
+    """Where a texture lies: a plane of the room and its texel grid (no image).
+
+    The renderer needs only this to map faces onto a texture it passes by file; the
+    fields mean what they mean in :class:`SurfaceTexture`, ``height`` x ``width`` texels.
+    """
+
+    label: str
+    axis: int
+    offset: float
+    origin: tuple[float, float]
+    texel: float
+    height: int
+    width: int
+    rotation: np.ndarray
+    name: str = ""
+
+    @property
+    def uv_axes(self) -> tuple[int, int]:
+        return _PLANE_AXES[self.axis]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.height, self.width
+
+    def texture_coords(self, points: np.ndarray) -> np.ndarray:
+        """``(N, 2)`` coordinates in ``[0, 1]`` of mesh-frame points on the texture:
+        ``u`` along columns, ``v`` along rows (row 0 at ``v = 0``)."""
+        a = np.asarray(points, float) @ np.asarray(self.rotation, float).T
+        iu, iv = self.uv_axes
+        u = (a[:, iu] - self.origin[0]) / (self.width * self.texel)
+        v = (a[:, iv] - self.origin[1]) / (self.height * self.texel)
+        return np.stack([u, v], axis=1)
 
 
 @dataclass
@@ -106,6 +144,15 @@ class SurfaceTexture:
     name: str = ""
 
     @property
+    def plane(self) -> TexturePlane:
+        """The texture's plane and texel grid."""
+        h, w = int(self.albedo.shape[0]), int(self.albedo.shape[1])
+        return TexturePlane(
+            self.label, self.axis, self.offset, self.origin, self.texel, h, w,
+            self.rotation, self.name,
+        )  # fmt: skip
+
+    @property
     def uv_axes(self) -> tuple[int, int]:
         return _PLANE_AXES[self.axis]
 
@@ -128,14 +175,8 @@ class SurfaceTexture:
         )
 
     def texture_coords(self, points: np.ndarray) -> np.ndarray:
-        """``(N, 2)`` coordinates in ``[0, 1]`` of mesh-frame points on the texture:
-        ``u`` along columns, ``v`` along rows (row 0 at ``v = 0``)."""
-        a = np.asarray(points, float) @ self.rotation.T
-        iu, iv = self.uv_axes
-        h, w = self.shape
-        u = (a[:, iu] - self.origin[0]) / (w * self.texel)
-        v = (a[:, iv] - self.origin[1]) / (h * self.texel)
-        return np.stack([u, v], axis=1)
+        """See :meth:`TexturePlane.texture_coords`."""
+        return self.plane.texture_coords(points)
 
 
 def face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -150,13 +191,13 @@ def face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def _face_geometry(
     vertices: np.ndarray, faces: np.ndarray, rotation: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Aligned unit normals, aligned centroids and areas of the faces."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Aligned unit normals, aligned centroids, areas and aligned corners of the faces."""
     tri = np.asarray(vertices, float)[np.asarray(faces)] @ np.asarray(rotation, float).T
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(cross, axis=1)
     normals = np.divide(cross, length[:, None], out=np.zeros_like(cross), where=length[:, None] > 0)
-    return normals, tri.mean(axis=1), 0.5 * length
+    return normals, tri.mean(axis=1), 0.5 * length, tri
 
 
 def planar_groups(
@@ -199,8 +240,7 @@ def planar_groups(
         index (-1: none).
     """
     flab = face_labels(labels, faces)
-    normals, centres, areas = _face_geometry(vertices, faces, rotation)
-    tri = np.asarray(vertices, float)[np.asarray(faces)] @ np.asarray(rotation, float).T
+    normals, centres, areas, tri = _face_geometry(vertices, faces, rotation)
     face_plane = np.full(len(flab), -1, np.int64)
     planes: list[dict[str, Any]] = []
     for label, lid in TEXTURED_LABELS.items():
@@ -243,7 +283,7 @@ def planar_groups(
 
 
 def match_planes(
-    textures: list[SurfaceTexture],
+    textures: list[TexturePlane] | list[SurfaceTexture],
     vertices: np.ndarray,
     faces: np.ndarray,
     face_label_names: list[str] | np.ndarray,
@@ -261,7 +301,7 @@ def match_planes(
     if not textures or len(faces) == 0:
         return out
     rotation = textures[0].rotation
-    normals, centres, _ = _face_geometry(vertices, faces, rotation)
+    normals, centres, _, _ = _face_geometry(vertices, faces, rotation)
     names = np.asarray(face_label_names)
     best = np.full(len(faces), np.inf)
     for k, tex in enumerate(textures):
@@ -614,8 +654,7 @@ def photo_textures(
         grazing = cos < min_cos
         codes = img[ii[idx], jj[idx]]
         sat = (codes >= saturation_level).any(axis=1)
-        u, v = hits.uv[idx, 0], hits.uv[idx, 1]
-        bary = np.stack([1.0 - u - v, u, v], axis=1)
+        bary = hits.barycentric[idx]
         e = np.einsum("nk,nkc->nc", bary, irradiance[faces[f]])
         no_e = ~np.all(np.isfinite(e) & (e > 0), axis=1)
         plane = face_plane[f]
@@ -780,16 +819,36 @@ def write_textures(
     return entries
 
 
-def read_textures(
-    entries: list[dict[str, Any]], invert_dir: str | Path, images: bool = True
-) -> list[SurfaceTexture]:
+def read_texture_planes(
+    entries: list[dict[str, Any]], invert_dir: str | Path
+) -> list[TexturePlane]:
+    """The planes of ``scene.json``'s ``textures`` entries, reading no image (raises
+    :class:`~reroom.errors.ScanError` naming a texture file that is missing)."""
+    out = []
+    for e in entries:
+        path = Path(invert_dir) / e["file"]
+        if not path.is_file():
+            raise ScanError(path, "texture file is missing")
+        out.append(
+            TexturePlane(
+                label=e["label"],
+                axis=int(e["axis"]),
+                offset=float(e["offset"]),
+                origin=(float(e["origin"][0]), float(e["origin"][1])),
+                texel=float(e["texel"]),
+                height=int(e["height"]),
+                width=int(e["width"]),
+                rotation=np.asarray(e["rotation"], float),
+                name=e["name"],
+            )
+        )
+    return out
+
+
+def read_textures(entries: list[dict[str, Any]], invert_dir: str | Path) -> list[SurfaceTexture]:
     """The textures of ``scene.json``'s ``textures`` entries (files relative to
     ``invert_dir``). Raises :class:`~reroom.errors.ScanError` naming a missing or
-    mis-sized file.
-
-    ``images=False`` reads no file: the arrays are zero-cost placeholders of the right
-    shape (what the renderer needs to map faces onto a texture it passes by path).
-    """
+    mis-sized file."""
     from reroom.io.images import read_exr
 
     def texture(e: dict[str, Any], albedo, detail, count) -> SurfaceTexture:
@@ -810,12 +869,6 @@ def read_textures(
     for e in entries:
         path = Path(invert_dir) / e["file"]
         h, w = int(e["height"]), int(e["width"])
-        if not images:
-            if not path.is_file():
-                raise ScanError(path, "texture file is missing")
-            zero = np.broadcast_to(np.float32(0.0), (h, w, 3))
-            out.append(texture(e, zero, zero, np.broadcast_to(np.int64(0), (h, w))))
-            continue
         albedo = read_exr(path)[..., :3]
         if albedo.shape[:2] != (h, w):
             raise ScanError(
