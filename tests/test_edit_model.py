@@ -254,3 +254,81 @@ def test_spread_frames_takes_the_middles_not_the_ends():
     assert spread_frames([7], 0) == [7]
     with pytest.raises(ValueError, match="no usable frame"):
         spread_frames([], 2)
+
+
+def _plate(centre, hx: float, hy: float) -> trimesh.Trimesh:
+    """A horizontal rectangular plate (two triangles, both sides occlude)."""
+    c = np.asarray(centre, float)
+    v = c + np.array([[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0]])
+    return trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+
+
+def _model_with(tmp: Path, lights: list[dict], extra: list[trimesh.Trimesh]) -> Path:
+    scan = _model(tmp, lights)
+    room = trimesh.Trimesh(*box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False), process=False)
+    mesh = trimesh.util.concatenate([room, *extra])
+    write_ply(
+        scan / "invert" / "albedo.ply",
+        mesh,
+        {"albedo": np.full((len(mesh.vertices), 3), ALBEDO, np.float32)},
+    )
+    return scan
+
+
+@pytest.mark.parametrize("kind", ["point", "line"])
+def test_shadow_clearance_lets_the_fixture_not_shadow_its_light(tmp_path: Path, kind) -> None:
+    """``distribution.shadow_clearance``: the solved profile already holds the fixture's
+    occlusion (reroom invert ignores everything within it), so the render must not block
+    the light a second time there; an occluder beyond it still casts its shadow."""
+    from reroom.edit import bake_vertex_radiance
+
+    flat = [1.0] * 8
+    if kind == "point":
+        light = {
+            "name": "lamp",
+            "type": "point",
+            "geometry": {"position": LIGHT.tolist(), "axis": [0.0, 0.0, 1.0]},
+            "color": [1.0, 1.0, 1.0],
+            "distribution": {"basis": "inclination", "bins": 8, "profile": flat},
+        }
+    else:
+        p0, p1 = LIGHT - [0.3, 0, 0], LIGHT + [0.3, 0, 0]
+        light = {
+            "name": "tube",
+            "type": "line",
+            "geometry": {"p0": p0.tolist(), "p1": p1.tolist(), "d_perp": [0.0, 0.0, 1.0]},
+            "color": [1.0, 1.0, 1.0],
+            "distribution": {"basis": "inclination", "bins": 8, "profile": flat},
+        }
+    # A "shade" 8 cm under the light (within 0.3 m) and a board 0.8 m under it, off to
+    # one side (beyond 0.3 m); the floor is 2.5x as far from the light as the board.
+    shade = _plate(LIGHT - [0, 0, 0.08], 0.35 if kind == "line" else 0.05, 0.03)
+    board = _plate(LIGHT + [0.0, 0.5, -0.8], 0.8, 0.15)
+    under_shade = np.array([[2.0, 1.5, 0.0], [2.1, 1.6, 0.0], [1.9, 1.45, 0.0]])
+    under_board = np.array([[2.0, 2.7, 0.0], [2.1, 2.6, 0.0]])
+    elsewhere = np.array([[0.5, 0.3, 0.0], [3.5, 0.6, 0.0]])
+    pts = np.concatenate([under_shade, under_board, elsewhere])
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    got = {}
+    for clearance in (None, 0.3):
+        lit = json.loads(json.dumps(light))
+        if clearance is not None:
+            lit["distribution"]["shadow_clearance"] = clearance
+        scan = _model_with(tmp_path / f"c{clearance}", [lit], [shade, board])
+        scene = model_scene(scan, max_depth=2, interpolation="constant")
+        got[clearance] = bake_vertex_radiance(scene, pts, normals, spp=64).radiance[:, 0]
+    # Unshadowed light: rho / pi * I cos / d^2 (point), the quadrature (line).
+    if kind == "point":
+        d = pts - LIGHT
+        r2 = (d**2).sum(1)
+        free = ALBEDO / math.pi * (-d[:, 2] / np.sqrt(r2)) / r2
+    else:
+        free = ALBEDO / math.pi * _line_floor_quadrature(pts, p0, p1, np.ones((8, 1)))
+    s, b, e = slice(0, 3), slice(3, 5), slice(5, None)
+    # Bare light: the shade and the board both shadow it.
+    assert np.all(got[None][s] == 0.0) and np.all(got[None][b] == 0.0)
+    np.testing.assert_allclose(got[None][e], free[e], rtol=0.03)
+    # With the clearance, the shade no longer does; the board still does.
+    np.testing.assert_allclose(got[0.3][s], free[s], rtol=0.03)
+    assert np.all(got[0.3][b] == 0.0)
+    np.testing.assert_allclose(got[0.3][e], free[e], rtol=0.03)

@@ -210,6 +210,8 @@ def test_line_light_outputs(tmp_path: Path, phi_bins: int) -> None:
     assert grid.shape == (8, phi_bins) and fold is True
     assert np.asarray(dist["support"]).shape == (8, phi_bins)
     assert np.asarray(dist["profile_solved"]).shape == (8, phi_bins)
+    # The renderer needs the clearance the profile was solved with (reroom.edit.model).
+    assert dist["shadow_clearance"] == opts.line_clearance
     color = np.asarray(doc["lights"][0]["color"])
     np.testing.assert_allclose(
         doc["lights"][0]["power"], line_light_power(grid.ravel(), 1.0, phi_bins) * color
@@ -263,6 +265,7 @@ def test_point_light_refined_towards_the_light_that_lit_the_room(
     doc = json.loads((scan / "invert" / "scene.json").read_text())
     entry = doc["lights"][0]
     found = np.asarray(entry["geometry"]["position"])
+    assert entry["distribution"]["shadow_clearance"] == opts.point_clearance
     if refine:
         assert entry["position_refinement"]["kept"]
         # Given 0.12 m off; across the room it lands on the truth, the height trades a

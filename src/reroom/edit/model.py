@@ -23,6 +23,9 @@ renders it.
 * **Line lights**: ``reroom_line`` with the solved profile: ``(theta, phi)`` bins around
   and along the line (``distribution.phi_bins``), or the separable ``theta`` profile of
   files written before the ``phi`` bins.
+  Both get the shadow clearance the profile was solved with
+  (``distribution.shadow_clearance``): nothing that close to the light shadows it, as in
+  the transfer, since the solved profile already holds the fixture's own occlusion.
 * **Glowing fittings**: faces of vertices ``albedo.ply`` flags as ``light`` that are not
   an area light's (a tube's own surface) are left out of the light transport: their
   light is in the solved distribution, and their mesh would enclose the emitter. Each
@@ -199,6 +202,7 @@ def model_scene(
                 geo["position"],
                 frame=luminaire_frame(nadir=-axis),
                 color=light.get("color", [1.0, 1.0, 1.0]),
+                clearance=float(dist.get("shadow_clearance", 0.0)),
             )
         elif kind == "line":
             from reroom.invert.export import line_profile_grid
@@ -215,6 +219,7 @@ def model_scene(
                 color=light.get("color", [1.0, 1.0, 1.0]),
                 interpolation=interpolation,
                 phi_fold=fold,
+                clearance=float(light["distribution"].get("shadow_clearance", 0.0)),
             )
         else:
             raise ReroomError(f"{scene_path}: light {name!r} has an unknown type {kind!r}")

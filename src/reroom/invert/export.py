@@ -369,6 +369,8 @@ def _line_entry(
         "phi": "out of the plane perpendicular to the line, + towards p1"
         + (" (|phi|: both signs share a bin)" if basis.fold else ""),
     }
+    if "shadow_clearance" in info:
+        dist["shadow_clearance"] = float(info["shadow_clearance"])
     if support is not None:
         sup = np.asarray(support, float)
         dist["support"] = sup.reshape(shape).tolist()
@@ -526,6 +528,8 @@ def light_entries(
                 "profile_solved": solved.tolist(),
                 "theta": "from the axis",
             }
+            if "shadow_clearance" in info:
+                e["distribution"]["shadow_clearance"] = float(info["shadow_clearance"])
             if support is not None:
                 e["distribution"]["support"] = [float(x) for x in support]
                 e["distribution"]["well_seen"] = [

@@ -500,7 +500,14 @@ def run_invert(
                 clearance=options.point_clearance,
             )
             blocks.append(LightBlock(light.name, "point", incl.size, True, chain))
-            info.append({"name": light.name, "type": "point", "geometry": g})
+            info.append(
+                {
+                    "name": light.name,
+                    "type": "point",
+                    "geometry": g,
+                    "shadow_clearance": options.point_clearance,
+                }
+            )
         elif light.type == "line":
             f = line_light_transfer(
                 caster,
@@ -521,6 +528,7 @@ def run_invert(
                     "name": light.name,
                     "type": "line",
                     "geometry": g,
+                    "shadow_clearance": options.line_clearance,
                     "basis": {
                         "theta_bins": line_basis.theta_bins,
                         "phi_bins": line_basis.phi_bins,

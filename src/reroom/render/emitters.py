@@ -31,7 +31,14 @@ tracing).
 
 Properties: ``position`` (point), ``to_world`` (transform), ``intensity``
 (``TensorXf (n_theta, n_phi)`` or a float for isotropic), ``color`` (3 floats,
-default 1), ``scale`` (float, default 1).
+default 1), ``scale`` (float, default 1), ``clearance`` (metres, default 0).
+
+``clearance`` makes the table the light *as seen from outside a sphere* of that radius
+around the position, as ``reroom invert`` solves it (``InvertOptions.point_clearance``):
+nothing within the sphere shadows the light, so a lamp's own shade or a downlight's can,
+whose occlusion is already in the solved table, does not block it a second time. The
+shadow ray of next-event estimation then ends where it enters the sphere; a point inside
+the sphere is not shadowed at all (as in :func:`reroom.invert.direct.point_light_transfer`).
 
 ``reroom_portal`` -- daylight through a window opening
 --------------------------------------------------------
@@ -114,6 +121,25 @@ _REGISTERED: set[str] = set()
 
 
 # ---------------------------------------------------------------------- registration
+def make_shadow_end(mi: ModuleType) -> Any:
+    """``shadow_end(p, d, dist, clear)``: where a shadow ray towards a light should stop.
+
+    Mitsuba tests next-event visibility from the shading point ``p`` to the sample's
+    ``ds.p``. A light that must not be shadowed by anything within ``clear`` of it (along
+    the ray: ``dist`` is the distance to the light along the unit direction ``d``, and
+    ``clear`` may vary per ray) gets ``ds.p`` moved to where the ray enters that region;
+    when ``p`` is inside it, to ``p`` itself plus a hair, which leaves nothing to test.
+    ``ds.d`` and ``ds.dist`` keep the true direction and distance.
+    """
+    import drjit as dr
+
+    def shadow_end(p: Any, d: Any, dist: Any, clear: Any) -> Any:
+        stop = dr.maximum(dist - clear, 1e-4)
+        return p + d * dr.minimum(stop, dist)
+
+    return shadow_end
+
+
 def register_emitters() -> ModuleType:
     """Register ``reroom_goniometric``, ``reroom_portal`` and ``reroom_line`` (idempotent).
 
@@ -253,6 +279,7 @@ def goniometric_light(
     flux: float | None = None,
     n_theta: int | None = None,
     n_phi: int | None = None,
+    clearance: float = 0.0,
 ) -> dict[str, Any]:
     """Build a ``reroom_goniometric`` emitter dict for ``mi.load_dict``.
 
@@ -278,6 +305,9 @@ def goniometric_light(
         (so that the emitter reproduces the file's bilinear interpolant
         exactly), else 0.5 deg (0.25 deg when the file is finer); ``n_phi`` is
         2 for axially symmetric profiles.
+    clearance:
+        Nothing within this distance (metres) of the position shadows the light (see
+        the module docstring); 0, the default, is a bare point light.
 
     Returns
     -------
@@ -313,7 +343,7 @@ def goniometric_light(
         scale = float(flux) / table_flux
     rot = np.eye(3) if frame is None else np.asarray(frame, dtype=np.float64)
     values = np.ascontiguousarray(grid.values, dtype=np.float32)
-    return {
+    d = {
         "type": GONIOMETRIC,
         "position": [float(x) for x in position],
         "to_world": mi.ScalarTransform4f(_affine(rot).tolist()),
@@ -321,6 +351,9 @@ def goniometric_light(
         "color": [float(c) for c in color],
         "scale": float(scale),
     }
+    if clearance > 0:
+        d["clearance"] = float(clearance)
+    return d
 
 
 def portal_emitter(
@@ -457,6 +490,8 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
     def _zero_wavelengths(si: Any) -> Any:
         return dr.zeros(type(si.wavelengths), dr.width(si.p))
 
+    shadow_end = make_shadow_end(mi)
+
     class GoniometricEmitter(mi.Emitter):
         """Point light with a tabulated type C intensity distribution (see module docstring)."""
 
@@ -494,6 +529,10 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
             color = _props_array(props, "color")
             color = np.ones(3) if color is None else np.broadcast_to(color, (3,))
             scale = float(props["scale"]) if "scale" in props else 1.0
+            clearance = float(props["clearance"]) if "clearance" in props else 0.0
+            if not math.isfinite(clearance) or clearance < 0:
+                raise ValueError(f"{GONIOMETRIC}: 'clearance' must be a distance >= 0")
+            self.clearance = clearance
             self.m_color = mi.Color3f(*[float(c) for c in color])
             self.m_scale = mi.Float(scale)
             self.m_table = mi.TensorXf(table.astype(np.float32))
@@ -591,6 +630,8 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
             ds.dist = dr.sqrt(dist2)
             # Light leaves the luminaire along -ds.d.
             spec = self._intensity(-ds.d, active) * dr.square(inv_dist)
+            if self.clearance > 0:
+                ds.p = shadow_end(it.p, ds.d, ds.dist, self.clearance)
             return ds, dr.select(active, spec, 0.0)
 
         def pdf_direction(self, it: Any, ds: Any, active: Any = True) -> Any:

@@ -38,7 +38,15 @@ flagged as a delta position (BSDF-sampled rays never hit it, as with point light
 Properties: ``p0``, ``p1`` (points), ``up`` (vector, default ``[0, 0, 1]``),
 ``profile`` (``TensorXf`` of ``n >= 1`` values >= 0 or of shape ``(n_theta, n_phi)``,
 or a float for a uniform line), ``phi_fold`` (bool, default true), ``interpolation``
-(``"linear"`` default, or ``"constant"``), ``color`` (3 floats), ``scale`` (float).
+(``"linear"`` default, or ``"constant"``), ``color`` (3 floats), ``scale`` (float),
+``clearance`` (metres, default 0).
+
+``clearance`` makes the profile the light *as seen from outside a cylinder* of that radius
+around the segment, as ``reroom invert`` solves it (``InvertOptions.line_clearance``):
+nothing within the cylinder shadows the light, so the tube's own housing and baffles,
+whose occlusion is already in the solved profile, do not block it a second time. Each
+shadow ray ends where it enters the cylinder, ``clearance / sin(angle to the line)``
+short of the sampled point on the line (as :func:`reroom.invert.direct.line_light_transfer`).
 """
 
 from __future__ import annotations
@@ -159,8 +167,11 @@ def line_light(
     scale: float = 1.0,
     interpolation: str = "linear",
     phi_fold: bool = True,
+    clearance: float = 0.0,
 ) -> dict[str, Any]:
     """Build a ``reroom_line`` emitter dict for ``mi.load_dict`` (see the module docstring).
+
+    ``clearance`` (metres): nothing within this distance of the line shadows it.
 
     ``profile``: ``(n_theta,)`` (separable) or ``(n_theta, n_phi)``; a ``(n_theta, 1)``
     table is the separable one.
@@ -183,6 +194,8 @@ def line_light(
     }
     if prof.ndim == 2:
         d["phi_fold"] = bool(phi_fold)
+    if clearance > 0:
+        d["clearance"] = float(clearance)
     return d
 
 
@@ -201,6 +214,10 @@ def _check_profile(profile: Any) -> np.ndarray:
 def make_line_class(mi: ModuleType) -> type:
     """Define the ``reroom_line`` plugin class for the current (JIT, RGB) variant."""
     import drjit as dr
+
+    from reroom.render.emitters import make_shadow_end
+
+    shadow_end = make_shadow_end(mi)
 
     class LineEmitter(mi.Emitter):
         """Generalized line light (see :mod:`reroom.render.line_emitter`)."""
@@ -225,6 +242,10 @@ def make_line_class(mi: ModuleType) -> type:
                 raise ValueError(f"{LINE}: interpolation must be 'linear' or 'constant'")
             color = vec("color", (1.0, 1.0, 1.0))
             scale = float(props["scale"]) if "scale" in props else 1.0
+            clearance = float(props["clearance"]) if "clearance" in props else 0.0
+            if not math.isfinite(clearance) or clearance < 0:
+                raise ValueError(f"{LINE}: 'clearance' must be a distance >= 0")
+            self.clearance = clearance
 
             self._p0, self._p1 = p0, p1
             self.length = float(np.linalg.norm(p1 - p0))
@@ -310,6 +331,12 @@ def make_line_class(mi: ModuleType) -> type:
             ds.d = d * inv_dist
             ds.dist = dr.sqrt(dist2)
             spec = self.m_color * (self._profile(-ds.d, active) * self.m_scale / dist2)
+            if self.clearance > 0:
+                # Along the ray, the cylinder of radius `clearance` about the line starts
+                # clearance / sin(angle between the ray and the line) before the point.
+                sin = dr.safe_sqrt(1.0 - dr.square(dr.dot(ds.d, self.m_tangent)))
+                clear = self.clearance / dr.maximum(sin, 1e-6)
+                ds.p = shadow_end(it.p, ds.d, ds.dist, clear)
             return ds, dr.select(active & (dist2 > 0), mi.Spectrum(spec), 0.0)
 
         def pdf_direction(self, it: Any, ds: Any, active: Any = True) -> Any:
