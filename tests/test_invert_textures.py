@@ -252,3 +252,56 @@ def test_unseen_texels_continue_a_striped_pattern():
     noise = rng.uniform(0.8, 1.2, (h, w, 3))
     flat = _continue_pattern(np.where(seen[..., None], noise, 1.0), seen)
     assert np.all(flat[~seen] == 1.0)
+
+
+def test_pixels_across_a_silhouette_are_left_out(tmp_path: Path):
+    """A photo's pixel integrates its whole footprint: where a dark board stands in front
+    of the wall, the pixels along its outline mix the two. Those must not darken the
+    wall's texture (``footprint``); with the test off, they do."""
+    root = tmp_path / "scan"
+    mesh, labels = _room()
+    n_board = 2 * 6 * 8  # the board's faces come last
+    intr = Intrinsics.from_fov(160, 120, 70.0)
+    poses = [look_at([1.0, 1.2, 1.2], [4.0, 1.4, 0.5]), look_at([1.5, 2.2, 1.4], [4.0, 1.0, 0.4])]
+    caster = RayCaster(mesh)
+    images = []
+    ss = 4  # 4 x 4 rays per pixel, averaged: the sensor's box footprint
+    for pose in poses:
+        frame = Frame(0, root / "x.png", pose, intr)
+        off = (np.arange(ss) + 0.5) / ss
+        jj, ii, sy, sx = np.meshgrid(
+            np.arange(intr.width), np.arange(intr.height), off, off, indexing="xy"
+        )
+        uv = np.stack([(jj + sx).ravel(), (ii + sy).ravel()], axis=1)
+        o, d = frame.pixel_rays(uv)
+        hits = caster.intersect(o, d, tmin=caster.eps)
+        rad = _radiance(hits.points)
+        rad[hits.face >= len(mesh.faces) - n_board] = 0.05  # a dark board
+        lin = rad.reshape(jj.shape).mean(axis=(2, 3))  # (height, width): "xy" indexing
+        code = np.round(255.0 * np.clip(lin, 0, 1) ** (1 / 2.2)).astype(np.uint8)
+        images.append(np.repeat(code[..., None], 3, axis=2))
+    write_scan(root, mesh, intr, poses, images, meta={"reroom": {"response": "gamma2.2"}})
+    (root / "hdr").mkdir()
+    frames = [{"index": j, "scale": [1.0] * 3} for j in range(len(poses))]
+    (root / "hdr" / "exposures.json").write_text(
+        json.dumps({"response": "gamma2.2", "frames": frames})
+    )
+    irradiance = np.full((len(mesh.vertices), 3), np.pi)
+    walls = {}
+    for fp in (1.0, 0.0):
+        textures, stats = photo_textures(
+            root, mesh, labels, np.eye(3), irradiance, texel=0.03, footprint=fp
+        )
+        walls[fp] = next(t for t in textures if t.label == "wall" and t.axis == 0 and t.offset > 1)
+        if fp:
+            assert stats["edge"] > 100
+        else:
+            assert stats["edge"] == 0
+    # Off: texels along the board's outline read dark (a 3 % tolerance on WALL = 0.5).
+    seen = walls[0.0].count > 0
+    dark = np.abs(walls[0.0].albedo[seen][:, 0] - WALL) > 0.03 * WALL
+    assert dark.sum() > 20
+    # On: every texel it keeps is the wall's albedo (to 8-bit steps).
+    seen = walls[1.0].count > 0
+    assert seen.sum() > 1000
+    np.testing.assert_allclose(walls[1.0].albedo[seen][:, 0], WALL, rtol=0.03)
