@@ -655,6 +655,25 @@ def photo_textures(
             ok &= same
         return ok
 
+    def _uniform_neighbourhood(plane_of: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Grid pixels whose 8 grid neighbours hit the same plane as they do.
+
+        Those need no corner rays: a surface that covered part of such a pixel's
+        footprint yet none of the 9 grid points would have to be narrower than the grid
+        step and fall between them. Pixels on the grid's border are not uniform.
+        """
+        grid = plane_of.reshape(shape)
+        out = np.zeros(shape, bool)
+        core = grid[1:-1, 1:-1]
+        same = core >= 0
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    h, w = shape
+                    same &= grid[1 + dy : h - 1 + dy, 1 + dx : w - 1 + dx] == core
+        out[1:-1, 1:-1] = same
+        return out.reshape(-1)
+
     def frame_samples(j: int):
         """One frame's ``(flat texel, albedo, vertex albedo)`` and counts, or a skip reason."""
         frame = scan.frames[j]
@@ -663,6 +682,7 @@ def photo_textures(
             return "no_exposure"
         k = frame.intrinsics
         ii, jj = _sample_grid(k.width, k.height, max_rays_per_frame)
+        grid_shape = (len(np.unique(ii)), len(np.unique(jj)))
         o, d = frame.pixel_rays(np.stack([jj + 0.5, ii + 0.5], axis=1))
         hits = caster.intersect(o, d, tmin=caster.eps)
         idx = np.flatnonzero(hits.hit)
@@ -693,9 +713,17 @@ def photo_textures(
             "off_plane": int((off & ~no_e & ~grazing & ~sat).sum()),
         }
         if footprint > 0 and keep.any():
-            inner = _inside_plane(frame, ii[idx][keep], jj[idx][keep], plane[keep])
-            counts["edge"] = int((~inner).sum())
-            keep[np.flatnonzero(keep)[~inner]] = False
+            # The plane each grid pixel sees (-1: none, or off its plane); pixels amid a
+            # uniform 3 x 3 block of the grid keep their sample, the others are tested
+            # with rays through their footprint's corners.
+            plane_of = np.full(len(hits.hit), -1, np.int64)
+            plane_of[idx[~off]] = plane[~off]
+            uniform = _uniform_neighbourhood(plane_of, grid_shape)[idx]
+            test = np.flatnonzero(keep & ~uniform)
+            if len(test):
+                inner = _inside_plane(frame, ii[idx][test], jj[idx][test], plane[test])
+                counts["edge"] = int((~inner).sum())
+                keep[test[~inner]] = False
         if not keep.any():
             return counts, None
         f, e, codes, plane, a, bary = (
