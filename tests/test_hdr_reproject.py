@@ -211,3 +211,20 @@ def test_predicted_weights_reject_a_bad_lut():
     obs, scales = _noisy_bracket(0.1, seed=0)
     with pytest.raises(ValueError, match="256 non-decreasing"):
         reproject_radiance(obs, scales, level_linear=LINEAR[::-1])
+
+
+def test_group_medians_match_a_sort_by_key_and_value():
+    from reroom.hdr.metrics import _group_medians
+
+    rng = np.random.default_rng(5)
+    key = rng.integers(0, 300, 20_000) * 7  # sparse keys, some absent
+    d = rng.normal(size=len(key))
+    keys, counts, med = _group_medians(key, d)
+    want = np.unique(key)
+    np.testing.assert_array_equal(keys, want)
+    np.testing.assert_array_equal(counts, [np.count_nonzero(key == k) for k in want])
+    np.testing.assert_allclose(med, [np.median(d[key == k]) for k in want])
+    # Even and odd group sizes; an empty input.
+    keys, counts, med = _group_medians(np.array([4, 4, 1]), np.array([1.0, 2.0, 5.0]))
+    assert keys.tolist() == [1, 4] and counts.tolist() == [1, 2] and med.tolist() == [5.0, 1.5]
+    assert len(_group_medians(np.zeros(0, np.int64), np.zeros(0))[0]) == 0

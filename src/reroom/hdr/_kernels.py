@@ -492,18 +492,19 @@ def pair_differences(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Differences ``logv[a] - logv[b]`` for samples of one vertex seen by frames ``j < k``.
 
-    Only frame pairs whose key ``j * n_frames + k`` is in the sorted array ``keys``
-    are emitted. Returns ``(pair_keys, differences)``.
+    Only frame pairs whose key ``j * n_frames + k`` is in ``keys`` are emitted (looked
+    up in a dense table of the ``n_frames**2`` pairs). Returns ``(pair_keys,
+    differences)``.
     """
+    wanted = np.zeros(n_frames * n_frames, np.bool_)
+    for key in keys:
+        wanted[key] = True
     count = 0
     for i in range(offsets.shape[0] - 1):
         for a in range(offsets[i], offsets[i + 1]):
             for b in range(offsets[i], offsets[i + 1]):
-                if frames[a] < frames[b]:
-                    key = frames[a] * n_frames + frames[b]
-                    pos = np.searchsorted(keys, key)
-                    if pos < keys.shape[0] and keys[pos] == key:
-                        count += 1
+                if frames[a] < frames[b] and wanted[frames[a] * n_frames + frames[b]]:
+                    count += 1
     out_k = np.empty(count, np.int64)
     out_d = np.empty(count, np.float64)
     q = 0
@@ -512,9 +513,37 @@ def pair_differences(
             for b in range(offsets[i], offsets[i + 1]):
                 if frames[a] < frames[b]:
                     key = frames[a] * n_frames + frames[b]
-                    pos = np.searchsorted(keys, key)
-                    if pos < keys.shape[0] and keys[pos] == key:
+                    if wanted[key]:
                         out_k[q] = key
                         out_d[q] = logv[a] - logv[b]
                         q += 1
     return out_k, out_d
+
+
+@nb.njit(cache=True)
+def group_medians_by_key(
+    key: np.ndarray, values: np.ndarray, n_keys: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keys present in ``key`` (in ``[0, n_keys)``), their counts and the median of
+    ``values`` per key.
+
+    A counting sort groups the values in O(n) (the keys are small integers: frame
+    pairs), and numba's ``np.median`` selects each group's median rather than sorting.
+    """
+    counts = np.zeros(n_keys, np.int64)
+    for k in key:
+        counts[k] += 1
+    starts = np.zeros(n_keys + 1, np.int64)
+    for k in range(n_keys):
+        starts[k + 1] = starts[k] + counts[k]
+    fill = starts[:-1].copy()
+    grouped = np.empty(values.shape[0], np.float64)
+    for i in range(key.shape[0]):
+        grouped[fill[key[i]]] = values[i]
+        fill[key[i]] += 1
+    present = np.flatnonzero(counts)
+    med = np.empty(present.shape[0], np.float64)
+    for g in range(present.shape[0]):
+        k = present[g]
+        med[g] = np.median(grouped[starts[k] : starts[k + 1]])
+    return present.astype(np.int64), counts[present], med

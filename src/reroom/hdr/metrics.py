@@ -147,12 +147,12 @@ def _group_medians(key: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """Unique keys, their counts and the medians of ``d`` per key."""
     if len(key) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    order = np.lexsort((d, key))
-    key, d = key[order], d[order]
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    counts = np.diff(np.r_[starts, len(key)])
-    med = 0.5 * (d[starts + (counts - 1) // 2] + d[starts + counts // 2])
-    return key[starts], counts, med
+    key = np.asarray(key, np.int64)
+    if key.min() < 0 or key.max() > 50_000_000:
+        raise ValueError("group keys must be integers in [0, 5e7]")
+    # A counting sort by key (in numba): a lexsort by key and value took 1.7 s per call
+    # on 300 frames, and this is a report's metric, computed 12 times.
+    return K.group_medians_by_key(key, np.ascontiguousarray(d, np.float64), int(key.max()) + 1)
 
 
 def seam_metric(
