@@ -40,16 +40,21 @@ def _model(tmp: Path, lights: list[dict]) -> Path:
     return scan
 
 
-def test_point_light_profile_orientation_and_units(tmp_path: Path) -> None:
-    from reroom.edit import bake_vertex_radiance
-
-    light = {
+def _point_light(profile: list[float]) -> dict:
+    """A scene.json point light at LIGHT, axis up, 8 inclination bins."""
+    return {
         "name": "lamp",
         "type": "point",
         "geometry": {"position": LIGHT.tolist(), "axis": [0.0, 0.0, 1.0]},
         "color": [1.0, 1.0, 1.0],
-        "distribution": {"basis": "inclination", "bins": 8, "profile": PROFILE},
+        "distribution": {"basis": "inclination", "bins": 8, "profile": list(profile)},
     }
+
+
+def test_point_light_profile_orientation_and_units(tmp_path: Path) -> None:
+    from reroom.edit import bake_vertex_radiance
+
+    light = _point_light(PROFILE)
     scan = _model(tmp_path, [light])
     scene = model_scene(scan, max_depth=2, interpolation="constant")
     # Floor points: direct light only (max_depth 2), closed form rho/pi I(theta) cos / d^2.
@@ -284,13 +289,7 @@ def test_shadow_clearance_lets_the_fixture_not_shadow_its_light(tmp_path: Path, 
 
     flat = [1.0] * 8
     if kind == "point":
-        light = {
-            "name": "lamp",
-            "type": "point",
-            "geometry": {"position": LIGHT.tolist(), "axis": [0.0, 0.0, 1.0]},
-            "color": [1.0, 1.0, 1.0],
-            "distribution": {"basis": "inclination", "bins": 8, "profile": flat},
-        }
+        light = _point_light(flat)
     else:
         p0, p1 = LIGHT - [0.3, 0, 0], LIGHT + [0.3, 0, 0]
         light = {
