@@ -132,6 +132,16 @@ def test_power_and_bad_parameters(mi) -> None:
         line_light(P0, P1, 1.0, up=(1, 0, 0))
     with pytest.raises(ValueError, match=">= 0"):
         line_light(P0, P1, [1.0, -1.0])
+    with pytest.raises(ValueError, match="clearance"):
+        line_light(P0, P1, 1.0, clearance=-0.1)
+    from reroom.render.emitters import goniometric_light
+
+    with pytest.raises(ValueError, match="clearance"):
+        goniometric_light(1.0, [0.0, 0.0, 2.0], clearance=float("nan"))
+    # The plugins check it too (a hand-written scene dict).
+    bad = {**line_light(P0, P1, 1.0), "clearance": -1.0}
+    with pytest.raises(Exception, match="clearance"):
+        mi.load_dict({"type": "scene", "light": bad})
 
 
 def _quadrature_2d(pts, profile, interpolation, fold=True, k: int = 4000):

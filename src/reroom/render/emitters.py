@@ -351,6 +351,8 @@ def goniometric_light(
         "color": [float(c) for c in color],
         "scale": float(scale),
     }
+    if not (np.isfinite(clearance) and clearance >= 0):
+        raise ValueError(f"{GONIOMETRIC}: clearance must be a distance >= 0, got {clearance!r}")
     if clearance > 0:
         d["clearance"] = float(clearance)
     return d

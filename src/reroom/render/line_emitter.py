@@ -194,6 +194,8 @@ def line_light(
     }
     if prof.ndim == 2:
         d["phi_fold"] = bool(phi_fold)
+    if not (np.isfinite(clearance) and clearance >= 0):
+        raise ValueError(f"{LINE}: clearance must be a distance >= 0, got {clearance!r}")
     if clearance > 0:
         d["clearance"] = float(clearance)
     return d
