@@ -71,6 +71,7 @@ __all__ = [
 #: Keys of inserted objects in the scene dict (``insert_<name>``): the composite drops them.
 INSERT_PREFIX = "insert_"
 _LABEL_IDS = {"wall": 0, "floor": 1, "ceiling": 2, "door": 3, "window": 4, "baseboard": 5}
+_LABEL_NAMES = {v: k for k, v in _LABEL_IDS.items()}
 _OTHER = 255
 _PORTAL_PANE = 254
 #: Unlabelled scan geometry this close to a point light (or a line light's segment) is its
@@ -430,8 +431,8 @@ def _photo_textured_shape(
 
 
 def _label_names(face_label: np.ndarray) -> np.ndarray:
-    names = {v: k for k, v in _LABEL_IDS.items()}
-    return np.array([names.get(int(x), "other") for x in face_label], dtype=object)
+    """Each face's label name (``"other"`` for unlabelled faces)."""
+    return np.array([_LABEL_NAMES.get(int(x), "other") for x in face_label], dtype=object)
 
 
 def _photo_texture_scan(
@@ -879,11 +880,10 @@ def _light_label(model: RoomModel, light: dict[str, Any]) -> str:
     c = np.asarray(light["geometry"].get("centroid", model.vertices.mean(0)), float)
     d = np.linalg.norm(model.vertices - c, axis=1)
     near = (d < np.sort(d)[min(200, len(d) - 1)]) & (model.labels != _OTHER)
-    names = {v: k for k, v in _LABEL_IDS.items()}
     if not near.any():
         return "ceiling"
     vals, counts = np.unique(model.labels[near], return_counts=True)
-    return names.get(int(vals[np.argmax(counts)]), "ceiling")
+    return _LABEL_NAMES.get(int(vals[np.argmax(counts)]), "ceiling")
 
 
 def _added_light(op: dict[str, Any]) -> dict[str, Any]:
@@ -1040,14 +1040,14 @@ def _empty_room(
         )
         keep &= ~(on_plane & parallel & within & (face_label == _LABEL_IDS["window"]))
     del scene["room"]
-    names = {v: k for k, v in _LABEL_IDS.items()}
     # The shell's faces on a photo-textured plane (floor, ceiling, walls not repainted).
     photo = np.full(len(sf), -1, np.int64)
     if model.photo_textures:
         from reroom.invert.textures import match_planes
 
-        photo = match_planes([t for t, _ in model.photo_textures], sv, sf, _label_names(face_label))
-        photo[~keep | np.isin(_label_names(face_label), sorted(paint))] = -1
+        face_names = _label_names(face_label)
+        photo = match_planes([t for t, _ in model.photo_textures], sv, sf, face_names)
+        photo[~keep | np.isin(face_names, sorted(paint))] = -1
         from reroom.io.images import write_exr
 
         for k, (tex, _) in enumerate(model.photo_textures):
@@ -1067,7 +1067,7 @@ def _empty_room(
             )
     keep = keep & (photo < 0)
     for lab in np.unique(face_label[keep]):
-        label = names.get(int(lab), "wall")
+        label = _LABEL_NAMES.get(int(lab), "wall")
         sel = keep & (face_label == lab)
         # Reveals of windows take the wall's paint and albedo.
         target = "wall" if label == "window" else label

@@ -639,20 +639,24 @@ def photo_textures(
     plane_u0 = np.array([o[0] for o in origins])
     plane_v0 = np.array([o[1] for o in origins])
 
+    def _plane_seen(h) -> np.ndarray:
+        """The plane each ray of ``h`` hit: -1 for none, or a hit farther than
+        ``max_plane_distance`` from its plane (a board leaning on the wall)."""
+        pl = np.where(h.hit, face_plane[np.where(h.hit, h.face, 0)], -1)
+        on = np.flatnonzero(pl >= 0)
+        a = h.points[on] @ rotation.T
+        k = pl[on]
+        far = np.abs(a[np.arange(len(on)), plane_axis[k]] - plane_offset[k]) > max_plane_distance
+        pl[on[far]] = -1
+        return pl
+
     def _inside_plane(frame, ii: np.ndarray, jj: np.ndarray, plane: np.ndarray) -> np.ndarray:
         """Whether the pixels' footprints (corners ``footprint`` px away) lie on ``plane``."""
         ok = np.ones(len(ii), bool)
         for dy, dx in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
             uv = np.stack([jj + 0.5 + dx * footprint, ii + 0.5 + dy * footprint], axis=1)
             o, d = frame.pixel_rays(uv)
-            h = caster.intersect(o, d, tmin=caster.eps)
-            pl = np.where(h.hit, face_plane[np.where(h.hit, h.face, 0)], -1)
-            same = pl == plane
-            a = h.points[same] @ rotation.T
-            k = plane[same]
-            near = np.abs(a[np.arange(len(k)), plane_axis[k]] - plane_offset[k])
-            same[np.flatnonzero(same)] = near <= max_plane_distance
-            ok &= same
+            ok &= _plane_seen(caster.intersect(o, d, tmin=caster.eps)) == plane
         return ok
 
     def _uniform_neighbourhood(plane_of: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -704,7 +708,8 @@ def photo_textures(
         plane = face_plane[f]
         a = hits.points[idx] @ rotation.T
         rows = np.arange(len(idx))
-        off = np.abs(a[rows, plane_axis[plane]] - plane_offset[plane]) > max_plane_distance
+        plane_of = _plane_seen(hits)  # per grid pixel: -1 where no plane, or off its plane
+        off = plane_of[idx] < 0
         keep = ~grazing & ~sat & ~no_e & ~off
         counts = {
             "grazing": int(grazing.sum()),
@@ -713,11 +718,8 @@ def photo_textures(
             "off_plane": int((off & ~no_e & ~grazing & ~sat).sum()),
         }
         if footprint > 0 and keep.any():
-            # The plane each grid pixel sees (-1: none, or off its plane); pixels amid a
-            # uniform 3 x 3 block of the grid keep their sample, the others are tested
-            # with rays through their footprint's corners.
-            plane_of = np.full(len(hits.hit), -1, np.int64)
-            plane_of[idx[~off]] = plane[~off]
+            # Pixels amid a uniform 3 x 3 block of the grid keep their sample, the others
+            # are tested with rays through their footprint's corners.
             uniform = _uniform_neighbourhood(plane_of, grid_shape)[idx]
             test = np.flatnonzero(keep & ~uniform)
             if len(test):
