@@ -42,6 +42,10 @@ reads ``ground_truth/``, which the estimate never does.
 ``--fireflies FRAME``
     Renders input frame FRAME from the recovered model with every light, then with each
     light off, and counts pixels brighter than 3x their 5x5 median.
+``--render-consistency``
+    Each solved light rendered alone (every surface white, path depth 2) against the
+    solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
+    shadow clearance off (the renderer before session 11) and on.
 
 Usage (niced; one ``reroom invert`` is 20-50 s)::
 
@@ -496,6 +500,68 @@ def light_swaps(scan: Path, work: Path) -> None:
         print(_row(label, evaluate_invert(src, work / name)), flush=True)
 
 
+def render_consistency(scan: Path, work: Path, clearance: bool = True, n: int = 4000) -> None:
+    """Each solved light rendered alone vs the solve's own transfer, at clustered receivers.
+
+    Every surface white (albedo 1), path depth 2 (direct light only): the probed radiance
+    times pi is the irradiance the renderer gives, ``F . I`` the one the solve fitted.
+    With ``clearance=False`` the point and line emitters get none (the renderer before
+    session 11), so their fixtures shadow them a second time.
+    """
+    import trimesh
+
+    from reroom.edit.apply import edited_scene
+    from reroom.render.emitters import register_emitters
+    from reroom.render.frames import probe_radiance
+    from reroom.render.glow import split_glow
+
+    res = _invert(scan, work / "consistency")
+    prob, pv = res.problem, res.problem_vertices
+    mesh = read_ply(scan / "mesh.ply")
+    normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
+    sub = np.random.default_rng(1).choice(len(pv), min(n, len(pv)), replace=False)
+    points, nrm, cluster = np.asarray(mesh.vertices)[pv[sub]], normals[pv[sub]], prob.cluster[sub]
+    intens = res.solve.intensity_vector(res.lights)
+    mi = register_emitters()
+    scene, _ = split_glow(
+        edited_scene(scan, [], invert_dir=res.out_dir, work_dir=work / "cons_edit")
+    )
+    lights = [k for k in scene if k.startswith("light_") and not k.endswith("_patch")]
+    print(
+        f"| light ({'clearance' if clearance else 'no clearance'}) | render / transfer "
+        "(sum, r/g/b) | wall | floor | ceiling |\n|---|---|---|---|---|"
+    )
+    start = 0
+    for block in res.lights:
+        cols = slice(start, start + block.size)
+        start += block.size
+        want = np.asarray(prob.transfer[sub][:, cols] @ intens[cols])
+        k = next(i for i, x in enumerate(res.light_info) if x["name"] == block.name)
+        d = {a: (dict(b) if isinstance(b, dict) else b) for a, b in scene.items()}
+        for name in lights:
+            if name != f"light_{k:02d}":
+                d.pop(name)
+        for name, entry in d.items():
+            if isinstance(entry, dict) and "bsdf" in entry and not name.startswith("light_"):
+                entry["bsdf"] = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 1.0}}
+        if not clearance:
+            em = d[f"light_{k:02d}"]
+            em.pop("clearance", None)
+        d["integrator"] = {"type": "path", "max_depth": 2}
+        got = np.pi * probe_radiance(mi.load_dict(d), points, nrm, 256, seed=5)[0]
+        ratio = got.sum(0) / np.maximum(want.sum(0), 1e-12)
+        per = [
+            got[cluster == c, 1].sum() / max(want[cluster == c, 1].sum(), 1e-12)
+            for c in range(len(prob.cluster_names))
+        ]
+        print(
+            f"| {block.name} ({block.kind}) | {'/'.join(f'{x:.3f}' for x in ratio)} | "
+            + " | ".join(f"{x:.3f}" for x in per)
+            + " |",
+            flush=True,
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -523,6 +589,11 @@ def main() -> None:
         "--hdr-variants", action="store_true", help="--bands for other HDR reprojection choices"
     )
     ap.add_argument("--rows", type=int, default=4, help="--swaps: only the first N variants")
+    ap.add_argument(
+        "--render-consistency",
+        action="store_true",
+        help="each light rendered alone vs the solve's transfer (with and without clearance)",
+    )
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
@@ -538,6 +609,9 @@ def main() -> None:
         truth_run(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.light_swaps:
         light_swaps(args.scan, args.work)
+    if args.render_consistency:
+        render_consistency(args.scan, args.work, clearance=False)
+        render_consistency(args.scan, args.work, clearance=True)
     if args.window_photos:
         window_photos(args.scan)
     if args.indirect:
