@@ -433,3 +433,117 @@ def test_portal_with_real_hdri_agrees_with_envmap(mi) -> None:
     window = portal.sum(-1) > 4 * np.median(portal.sum(-1))
     assert window.sum() >= 4
     np.testing.assert_allclose(env[window].mean(0), portal[window].mean(0), rtol=0.02)
+
+
+def test_sky_peakedness_and_default_share() -> None:
+    """An even sky is sampled on the opening alone; a map with a small sun is not."""
+    from reroom.render.emitters import (
+        SKY_PEAKEDNESS_THRESHOLD,
+        _pixel_directions,
+        default_sky_sampling,
+        latlong_direction_to_uv,
+        sky_peakedness,
+    )
+
+    even = np.ones((16, 32, 3), np.float32)
+    assert sky_peakedness(even) == pytest.approx(1.0)
+    assert sky_peakedness(even, [1.0, 0.0, 0.0]) == pytest.approx(1.0)
+    assert default_sky_sampling(even, [1.0, 0.0, 0.0]) == 0.0
+    sun = even.copy()
+    sun[6, 8] = 5000.0  # one pixel holds most of the light
+    v = sky_peakedness(sun)
+    assert v > 10 * SKY_PEAKEDNESS_THRESHOLD
+    assert 0.45 < default_sky_sampling(sun) < 0.5
+    # A sun behind the opening does not count.
+    d = _pixel_directions(16, 32)[6, 8]
+    assert sky_peakedness(sun, -d) == pytest.approx(1.0, abs=1e-6)
+    # The pixel directions follow the module's lat-long convention, rotation included.
+    for rot in (0.0, 75.0):
+        dirs = _pixel_directions(16, 32, rot).reshape(-1, 3)
+        uv = latlong_direction_to_uv(dirs, rot)
+        rows, cols = np.meshgrid(np.arange(16), np.arange(32), indexing="ij")
+        np.testing.assert_allclose(uv[:, 0] * 32 - 0.5, cols.ravel(), atol=1e-6)
+        np.testing.assert_allclose(uv[:, 1] * 16 - 0.5, rows.ravel(), atol=1e-6)
+
+
+def test_portal_sky_pdf_integrates_to_one(mi) -> None:
+    """The sky strategy's solid-angle pdf is a density over the sphere."""
+    from reroom.data import hdri_path
+    from reroom.render.emitters import load_hdri
+
+    sky = load_hdri(hdri_path("sunrise"), max_width=128)
+    scene = _room_scene(mi, "portal", sky, 1, rotation=30.0)
+    portal = [e for e in scene.emitters() if "Portal" in str(e)][0]
+    assert portal.sky_share > 0.4
+    n = 400_000
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5.0**0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    d = np.stack([r * np.cos(phi), r * np.sin(phi), z]).astype(np.float32)
+    pdf = np.array(portal._sky_pdf(mi.Vector3f(d)))
+    assert pdf.mean() * 4.0 * np.pi == pytest.approx(1.0, rel=0.02)
+    # Nothing behind the opening (outward is +x here).
+    assert pdf[d[0] < -0.05].max() == 0.0
+
+
+def test_portal_sky_sampling_finds_a_low_sun_without_bias(mi) -> None:
+    """A low sun through the window: same image as Mitsuba's envmap, far less noise."""
+    from reroom.data import hdri_path
+    from reroom.render.emitters import load_hdri
+
+    sky = load_hdri(hdri_path("sunrise"))  # its sun holds ~60 % of the light
+    w, h = 32, 24
+    env = np.array(mi.render(_room_scene(mi, "env", sky, 2048, w, h), seed=4))
+    sky_scene = _room_scene(mi, "portal", sky, 512, w, h)
+    portal = [e for e in sky_scene.emitters() if "Portal" in str(e)][0]
+    assert portal.sky_share > 0.4
+    img = np.array(mi.render(sky_scene, seed=3))
+    assert img.mean() == pytest.approx(env.mean(), rel=0.03)
+
+    def rmse(share: float | None, spp: int, seed: int) -> float:
+        from reroom.render.emitters import window_portal
+
+        scene = _room_scene(mi, "portal", sky, spp, w, h)
+        if share is not None:
+            # Rebuild with the share forced (0: uniform points on the opening alone).
+            d = {"type": "scene", "integrator": {"type": "path", "max_depth": 4}}
+            d["sensor"] = _camera(mi, [-1.8, -1.2, 1.6], [1.5, 0.5, 0.8], w, h, spp, fov=75)
+            d.update(_room(mi))
+            centre = [ROOM["x"], 0.0, (ROOM["wz0"] + ROOM["wz1"]) / 2]
+            d["window"] = window_portal(centre, 1.2, 1.0, [-1, 0, 0], sky)
+            d["window"]["emitter"]["sky_sampling"] = share
+            scene = mi.load_dict(d, optimize=False)
+        errs = [np.array(mi.render(scene, seed=seed + i)) - img for i in range(4)]
+        return float(np.sqrt(np.mean(np.square(errs)[:, surfaces])))
+
+    # Pixels that see the sky through the window are the same for both strategies.
+    from scipy.ndimage import binary_dilation
+
+    surfaces = ~binary_dilation(img.sum(-1) > 4 * np.median(img.sum(-1)), iterations=1)
+    assert surfaces.mean() > 0.8
+
+    uniform, mixed = rmse(0.0, 16, 10), rmse(None, 16, 10)
+    print(
+        f"\nRMSE at 16 spp: uniform points {uniform:.4g}, mixture {mixed:.4g}; mean / envmap {img.mean() / env.mean():.4f}"
+    )
+    assert mixed < uniform / 2.0
+
+
+def test_portal_opening_and_share_are_checked(mi) -> None:
+    from reroom.render.emitters import portal_emitter
+
+    sky = np.ones((8, 16, 3), np.float32)
+    with pytest.raises(ValueError, match="inward_normal must be a nonzero 3-vector"):
+        portal_emitter(sky, opening=([0, 0, 1], [1, 0, 0], [0, 0, 1], [0, 0, 0]))
+    with pytest.raises(ValueError, match="opening half_u must be a finite 3-vector"):
+        portal_emitter(sky, opening=([0, 0, 1], [np.nan, 0, 0], [0, 0, 1], [0, 1, 0]))
+    with pytest.raises(ValueError, match="span no area"):
+        portal_emitter(sky, opening=([0, 0, 1], [1, 0, 0], [2, 0, 0], [0, 1, 0]))
+    shape = {"type": "rectangle", "emitter": portal_emitter(sky, sky_sampling=0.3)}
+    with pytest.raises(Exception, match="sky_sampling needs 'outward'"):
+        mi.load_dict({"type": "scene", "window": shape})
+    opening = ([0, 0, 1], [1, 0, 0], [0, 0, 1], [0, 1, 0])
+    shape = {"type": "rectangle", "emitter": portal_emitter(sky, opening=opening, sky_sampling=1.0)}
+    with pytest.raises(Exception, match=r"sky_sampling must be in \[0, 1\)"):
+        mi.load_dict({"type": "scene", "window": shape})

@@ -843,21 +843,25 @@ def _apply_light(
             entry.pop("emitter", None)
             return
         if st.window is not None:
-            from reroom.invert.basis import CubemapBasis
-            from reroom.invert.export import latlong_from_cubemap
+            from reroom.data import hdri_path
+            from reroom.render.emitters import load_hdri
 
             op = st.window
-            cells, _factor = swap_window_environment(
+            _cells, factor = swap_window_environment(
                 light, op["hdri"], op.get("was"), op.get("scale", 1.0)
             )
-            n = int(light["distribution"].get("n", 4))
-            env = latlong_from_cubemap(cells, CubemapBasis(n), height=64)
+            # The new sky at its own resolution, only scaled into model units: a user who
+            # names an HDRI expects its sun's sharp patch, not the recovered light's
+            # 96-cell blur (the cells serve only to find the factor).
+            env = load_hdri(hdri_path(str(op["hdri"]))) * factor[None, None, :]
         else:
             from reroom.io.images import read_exr
 
             exr = light.get("environment_exr", f"window_{light['name']}.exr")
             env = np.maximum(read_exr(model.invert_dir / exr)[..., :3], 0.0)
-        entry["emitter"] = portal_emitter(np.asarray(env * gain, np.float32))
+        geo = light["geometry"]
+        opening = tuple(geo[k] for k in ("centre", "half_u", "half_v", "normal"))
+        entry["emitter"] = portal_emitter(np.asarray(env * gain, np.float32), opening=opening)
     elif kind in ("point", "line"):
         if st.off:
             del scene[key]

@@ -192,7 +192,7 @@ def model_scene(
                 "type": "rectangle",
                 "to_world": mi.ScalarTransform4f(m.tolist()),
                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
-                "emitter": portal_emitter(env),
+                "emitter": portal_emitter(env, opening=(centre, hu, hv, normal)),
             }
         elif kind == "point":
             dist = light["distribution"]

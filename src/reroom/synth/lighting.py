@@ -57,6 +57,14 @@ def approximate_power(light: dict, scene_dir: Path) -> float:
     raise ValueError(f"unknown light type {kind!r}")
 
 
+def _opening(light: dict) -> tuple | None:
+    """A window's parallelogram ``(centre, half_u, half_v, inward normal)`` from its corners."""
+    if "corners" not in light or "normal" not in light:
+        return None
+    c = np.asarray(light["corners"], float)
+    return c.mean(0), (c[1] - c[0]) / 2.0, (c[3] - c[0]) / 2.0, np.asarray(light["normal"], float)
+
+
 def shape_emitter(light: dict, scene_dir: Path, mi: Any) -> dict | None:
     """The emitter dict to attach to a light's part, or ``None`` if it has none."""
     kind = light["type"]
@@ -74,6 +82,7 @@ def shape_emitter(light: dict, scene_dir: Path, mi: Any) -> dict | None:
             str(scene_dir / light["hdri_file"]),
             scale=float(light.get("scale", 1.0)),
             rotation_deg=float(light.get("rotation_deg", 0.0)),
+            opening=_opening(light),
         )
         d["sampling_weight"] = weight
         return d
