@@ -927,12 +927,8 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
 
         def _sky_pdf(self, d: Any, active: Any = True) -> Any:
             """Solid-angle pdf of the sky strategy for the world direction ``d``."""
-            x = d.x * self.m_cos_rot + d.y * self.m_sin_rot
-            y = d.y * self.m_cos_rot - d.x * self.m_sin_rot
-            u = 0.5 - dr.atan2(y, x) * inv_two_pi
-            u = u - dr.floor(u)
+            u, v = self._map_uv(d)
             cos_t = dr.clip(d.z, -1.0, 1.0)
-            v = dr.safe_acos(cos_t) * inv_pi
             w, h = self.width, self.height
             col = dr.minimum(mi.UInt32(dr.maximum(u * w, 0.0)), w - 1)
             row = dr.minimum(mi.UInt32(dr.maximum(v * h, 0.0)), h - 1)
@@ -962,14 +958,18 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
             )
 
         # -- helpers ---------------------------------------------------------
-        def _radiance(self, d: Any, active: Any = True) -> Any:
-            """Outdoor radiance seen looking along the unit world direction ``d``."""
+        def _map_uv(self, d: Any) -> tuple[Any, Any]:
+            """The map coordinates ``(u, v)`` in [0, 1) of the unit world direction ``d``."""
             # Undo the environment's rotation about +Z.
             x = d.x * self.m_cos_rot + d.y * self.m_sin_rot
             y = d.y * self.m_cos_rot - d.x * self.m_sin_rot
             u = 0.5 - dr.atan2(y, x) * inv_two_pi
             u = u - dr.floor(u)
-            v = dr.safe_acos(d.z) * inv_pi
+            return u, dr.safe_acos(d.z) * inv_pi
+
+        def _radiance(self, d: Any, active: Any = True) -> Any:
+            """Outdoor radiance seen looking along the unit world direction ``d``."""
+            u, v = self._map_uv(d)
             w, h = self.width, self.height
             fx = u * w - 0.5
             fx = dr.select(fx < 0, fx + w, fx)
