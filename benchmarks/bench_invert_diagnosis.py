@@ -42,6 +42,18 @@ reads ``ground_truth/``, which the estimate never does.
 ``--fireflies FRAME``
     Renders input frame FRAME from the recovered model with every light, then with each
     light off, and counts pixels brighter than 3x their 5x5 median.
+``--at-truth``
+    The truth run's problem (true radiance, true lights) evaluated at the truth: the data
+    cost at the solution and at the true parameters (true cluster albedos, the window's
+    true cells, every other light's solved shape scaled to its true power), the same
+    problem re-solved with the line lights fixed at their true scale (how flat the
+    light-albedo valley is), and per cluster the model's direct and indirect irradiance at
+    the truth against the path tracer's (depth 2 for direct light), with the floor in
+    1 m cells. Needs a window or a line light to say much.
+``--interpolation``
+    Path-traced radiance at random points inside the scan mesh's faces against the
+    barycentric interpolation of the truth's vertex radiance, per label: the radiance
+    field that ``E_ind``'s rays read between vertices.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -65,7 +77,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reroom.invert.evaluate import evaluate_invert, lights_from_truth
+from reroom.invert.evaluate import evaluate_invert, hidden_as_unobserved, lights_from_truth
 from reroom.invert.pipeline import InvertOptions, run_invert
 from reroom.invert.solve import SolveOptions, solve_lighting
 from reroom.io.mesh import read_ply, write_ply
@@ -132,9 +144,10 @@ def reprobe(scan: Path, spp: int, eval_dir: Path) -> None:
 
 
 def _truth(scan: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True radiance (NaN where no probe could see the vertex), albedo and label."""
     a = read_ply(scan / "ground_truth" / "vertices.ply").vertex_attributes
     return (
-        np.asarray(a["radiance"], float),
+        hidden_as_unobserved(np.asarray(a["radiance"], float)),
         np.asarray(a["albedo"], float),
         np.asarray(a["label"]).astype(int),
     )
@@ -284,6 +297,189 @@ def truth_run(scan: Path, work: Path, solve: SolveOptions) -> None:
     for b in fixed.lights:
         ratio = again.intensities[b.name].sum(axis=0) / res.solve.intensities[b.name].sum(axis=0)
         print(f"  {b.name}: " + " / ".join(f"{x:.3f}" for x in ratio))
+
+
+def _truth_problem(scan: Path, work: Path, solve: SolveOptions):
+    """The truth run's result (cached) and the linked scan with the true lights."""
+    true_rad, _, _ = _truth(scan)
+    src = _true_lights_scan(scan, work)
+    out = work / "true_radiance_true_lights"
+    res = _invert_result_cache.get(out) or _invert(src, out, true_rad, solve)
+    return res, src, out
+
+
+def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> None:
+    """How the truth run's model fits at the true parameters, and where it misses."""
+    import scipy.sparse as sp
+    import trimesh
+
+    from reroom.invert.evaluate import true_window_cells
+    from reroom.invert.solve import indirect_weights
+    from reroom.render import mitsuba
+    from reroom.render.frames import probe_radiance
+    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
+
+    res, src, out = _truth_problem(scan, work, solve)
+    prob, sol, rows = res.problem, res.solve, res.problem_vertices
+    report = evaluate_invert(src, out)
+    _, true_albedo, label = _truth(scan)
+    f = sp.csr_matrix(prob.transfer)
+    off = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])]).astype(int)
+    gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
+    true_int: dict[str, np.ndarray] = {}
+    for e in report["lights"]:
+        solved = sol.intensities[e["name"]]
+        if e["type"] == "window":
+            win = next(x for x in gt["lights"] if x["name"] == e["truth"])
+            n = int(round(np.sqrt(solved.shape[0] / 6)))
+            true_int[e["name"]], _ = true_window_cells(win, scan / "ground_truth" / "scene", n=n)
+        else:  # the solved shape at the true power (the shape error is reported separately)
+            true_int[e["name"]] = solved / (1.0 + np.asarray(e["power_relative_error"]))
+    rho_true = sol.albedo / (
+        1.0 + np.array([report["clusters"][c]["relative_error"] for c in prob.cluster_names])
+    )
+    w = indirect_weights(prob.radiance, prob.indirect, solve.reweight_c or 10.0)
+    scale = float(np.median(prob.radiance))
+    delta = solve.huber_delta or np.inf
+
+    def irradiance(inten: dict) -> dict[str, np.ndarray]:
+        return {
+            b.name: np.asarray(f[:, off[i] : off[i + 1]] @ inten[b.name])
+            for i, b in enumerate(prob.lights)
+        }
+
+    def cost(rho: np.ndarray, inten: dict) -> float:
+        e = prob.indirect + sum(irradiance(inten).values())
+        r = np.abs(np.sqrt(w) * (prob.radiance - rho[prob.cluster] / np.pi * e) / scale)
+        return float(np.where(r <= delta, 0.5 * r * r, delta * (r - 0.5 * delta)).sum())
+
+    print(
+        f"\ndata cost (Huber, eq. 5.8 weights): solution {cost(sol.albedo, sol.intensities):.4g}, "
+        f"true parameters {cost(rho_true, true_int):.4g}"
+    )
+    lines = [i for i, b in enumerate(prob.lights) if b.kind == "line"]
+    if lines:
+        e_fix = sum(
+            np.asarray(f[:, off[i] : off[i + 1]] @ true_int[prob.lights[i].name]) for i in lines
+        )
+        keep = np.concatenate(
+            [np.arange(off[i], off[i + 1]) for i in range(len(prob.lights)) if i not in lines]
+        )
+        fixed = dataclasses.replace(
+            prob,
+            indirect=prob.indirect + e_fix,
+            transfer=f[:, keep],
+            lights=[b for i, b in enumerate(prob.lights) if i not in lines],
+        )
+        again = solve_lighting(fixed, solve)
+        print(
+            f"line lights fixed at their true power, the rest re-solved: objective "
+            f"{again.objective:.4g} against {sol.objective:.4g} as solved; albedo error "
+            + ", ".join(
+                f"{c} {_pct(a)}"
+                for c, a in zip(prob.cluster_names, again.albedo / rho_true - 1, strict=True)
+            )
+        )
+    # The path tracer's direct (depth 2) and total radiance at the receivers.
+    mi = mitsuba()
+    scene_dir = scan / "ground_truth" / "scene"
+    desc = load_scene_description(scene_dir)
+    desc["integrator"] = {"type": "path", "max_depth": 2}
+    scene = mi.load_dict(mitsuba_scene_dict(desc, scene_dir))
+    mesh = read_ply(scan / "mesh.ply")
+    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    pts, nrm = np.asarray(mesh.vertices)[rows], np.asarray(tm.vertex_normals)[rows]
+    direct, _ = probe_radiance(scene, pts, nrm, spp, seed=1)
+    rho_v = np.maximum(true_albedo[rows], 1e-3)
+    e_dir_true = np.pi * direct / rho_v
+    e_ind_true = np.pi * (prob.radiance - direct) / rho_v
+    e_dir = sum(irradiance(true_int).values())
+    pred = rho_true[prob.cluster] / np.pi * (prob.indirect + e_dir)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    print(
+        "\n| cluster | predicted / observed at the truth | E_dir model / path tracer | E_ind model / path tracer |"
+    )
+    print("|---|---|---|---|")
+    for c, name in enumerate(prob.cluster_names):
+        m = prob.cluster == c
+        print(
+            f"| {name} | {_ratio(pred[m], prob.radiance[m])} | {_ratio(e_dir[m], e_dir_true[m])} | "
+            f"{_ratio(prob.indirect[m], e_ind_true[m])} |"
+        )
+    floor = (
+        prob.cluster == prob.cluster_names.index("floor") if "floor" in prob.cluster_names else None
+    )
+    if floor is None or not floor.any():
+        return
+    p = pts[floor]
+    xe = np.arange(p[:, 0].min(), p[:, 0].max() + 1.0, 1.0)
+    ye = np.arange(p[:, 1].min(), p[:, 1].max() + 1.0, 1.0)
+    print("\nfloor, 1 m cells (rows: y from the lowest): E_dir model / path tracer (luminance)")
+    for j in range(len(ye) - 1):
+        cells = []
+        for i in range(len(xe) - 1):
+            c = (
+                (p[:, 0] >= xe[i])
+                & (p[:, 0] < xe[i + 1])
+                & (p[:, 1] >= ye[j])
+                & (p[:, 1] < ye[j + 1])
+            )
+            a, b = e_dir[floor][c] @ lum, e_dir_true[floor][c] @ lum
+            cells.append(f"{a.sum() / b.sum():5.2f}" if c.sum() >= 5 and b.sum() > 0 else "  -  ")
+        print(f"  y {ye[j]:4.1f} " + " ".join(cells))
+
+
+def _ratio(a: np.ndarray, b: np.ndarray) -> str:
+    return "/".join(f"{x:.3f}" for x in a.sum(axis=0) / np.maximum(b.sum(axis=0), 1e-300))
+
+
+def interpolation(scan: Path, spp: int = 2048, points: int = 600) -> None:
+    """Path-traced radiance inside faces against the interpolated vertex radiance."""
+    import trimesh
+
+    from reroom.render import mitsuba
+    from reroom.render.frames import probe_radiance
+    from reroom.synth.labels import LABEL_NAMES
+    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
+
+    true_rad, _, label = _truth(scan)
+    mesh = read_ply(scan / "mesh.ply")
+    v, fc = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    tm = trimesh.Trimesh(v, fc, process=False)
+    rng = np.random.default_rng(5)
+    emitter = (label[fc] == 7).any(axis=1)  # a light's own faces glow
+    p = tm.area_faces * ~emitter
+    f = rng.choice(len(fc), points, p=p / p.sum())
+    u = rng.random((points, 2))
+    u[u.sum(axis=1) > 1] = 1 - u[u.sum(axis=1) > 1]
+    bc = np.c_[1 - u.sum(axis=1), u]
+    pts = (bc[..., None] * v[fc[f]]).sum(axis=1)
+    hidden = np.isnan(true_rad).any(axis=1)  # no probe saw them (inside geometry)
+    seen = ~hidden[fc[f]].any(axis=1)
+    interp = (bc[..., None] * np.nan_to_num(true_rad)[fc[f]]).sum(axis=1)
+    mi = mitsuba()
+    scene_dir = scan / "ground_truth" / "scene"
+    scene = mi.load_dict(mitsuba_scene_dict(load_scene_description(scene_dir), scene_dir))
+    traced, _ = probe_radiance(scene, pts, tm.face_normals[f], spp, seed=9)
+    at_vertex, _ = probe_radiance(scene, v[fc[f, 0]], tm.vertex_normals[fc[f, 0]], spp, seed=10)
+    ok = ~hidden[fc[f, 0]]
+    print(
+        f"\nat vertices: path tracer / truth file {_ratio(at_vertex[ok], true_rad[fc[f[ok], 0]])}; "
+        f"{hidden.sum()} of {len(hidden)} vertices hidden (radiance exactly 0)"
+    )
+    print(
+        "| label (of the face's first vertex) | points | path tracer / interpolated, hidden "
+        "vertices as 0 | points on faces without one | path tracer / interpolated |"
+    )
+    print("|---|---|---|---|---|")
+    lab = label[fc[f, 0]]
+    groups = [(LABEL_NAMES.get(int(c), c), lab == c) for c in np.unique(lab)]
+    for name, m in groups + [("all", np.ones(points, bool))]:
+        s = m & seen
+        print(
+            f"| {name} | {m.sum()} | {_ratio(traced[m], interp[m])} | {s.sum()} | "
+            f"{_ratio(traced[s], interp[s]) if s.any() else '-'} |"
+        )
 
 
 def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
@@ -583,6 +779,10 @@ def main() -> None:
         "--window-photos", action="store_true", help="what the photos through the window show"
     )
     ap.add_argument("--indirect", action="store_true")
+    ap.add_argument("--at-truth", action="store_true", help="the truth run's model at the truth")
+    ap.add_argument(
+        "--interpolation", action="store_true", help="radiance inside faces vs interpolated"
+    )
     ap.add_argument("--bands", action="store_true")
     ap.add_argument("--bin-by", type=Path, help="independent truth PLY for --bands")
     ap.add_argument(
@@ -607,6 +807,10 @@ def main() -> None:
         swaps(args.scan, args.work, SolveOptions(**json.loads(args.solve)), args.rows)
     if args.truth_run:
         truth_run(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+    if args.at_truth:
+        at_truth(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+    if args.interpolation:
+        interpolation(args.scan)
     if args.light_swaps:
         light_swaps(args.scan, args.work)
     if args.render_consistency:

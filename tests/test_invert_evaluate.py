@@ -12,6 +12,7 @@ import trimesh
 from reroom.invert.basis import InclinationBasis, LineBasis
 from reroom.invert.evaluate import (
     distribution_relative_l2,
+    hidden_as_unobserved,
     true_line_profile,
     true_point_profile,
     true_window_cells,
@@ -225,3 +226,13 @@ def test_window_cells_of_a_constant_sky(tmp_path):
     assert shown.sum() == 48  # the half of the cube map beyond the wall
     np.testing.assert_allclose(cells[shown], np.broadcast_to([0.5, 1.0, 1.5], (48, 3)), 1e-6)
     assert np.all(cells[~shown] == 0)
+
+
+def test_hidden_vertices_are_unobserved_in_true_radiance_runs():
+    # A vertex no probe could see reads exactly 0 in every channel; a dark channel alone
+    # (a saturated red surface's blue) is real radiance and stays.
+    rad = np.array([[0.2, 0.3, 0.1], [0.0, 0.0, 0.0], [0.4, 0.0, 0.0]])
+    out = hidden_as_unobserved(rad)
+    assert np.isnan(out[1]).all()
+    np.testing.assert_array_equal(out[[0, 2]], rad[[0, 2]])
+    assert not np.isnan(rad).any()  # the input is not changed

@@ -30,6 +30,7 @@ from reroom.localize.scan import (
     _floating,
     _mount_test,
     _Problem,
+    _unheld,
     localize_into_lights,
     localize_scan,
     merge_localized_lights,
@@ -477,6 +478,24 @@ def test_floating_light_is_one_nothing_can_hold():
             RayCaster(both), np.asarray(both.vertices), lab, np.array([2.0, 1.5, 1.2]), opt
         )
         assert (got is None) == held, (x, height, got)
+
+
+def test_a_mounted_light_is_held_by_the_surface_it_is_mounted_on():
+    # The mount test put a light mount_depth below the ceiling at the x, y it searched
+    # from; refitted sideways, the ceiling above it (a fused scan's is bumpy) is a little
+    # higher, so the floating test alone reads it as floating. Mounted, it is held.
+    mesh, labels = _grid_room()
+    opt = ScanLocalizeOptions()
+    caster = RayCaster(mesh)
+    verts = np.asarray(mesh.vertices)
+    low = SIZE[2] - opt.mount_depth - 1e-3
+    placed = np.array([[2.0, 1.5, low], [2.0, 1.5, 1.2], [1.0, 1.5, low]])
+    assert _floating(caster, verts, labels, placed[0], opt) is not None
+    mounted = {"mount": {"mounted": True}}
+    profiles = [mounted, None, {"mount": {"mounted": False}}]
+    got = _unheld(caster, verts, labels, placed, profiles, opt)
+    assert [k for k, _ in got] == [1, 2], got
+    assert all(why.startswith("floating:") for _, why in got)
 
 
 def test_floating_lights_dropped_by_default(room_scan: Path, localized):

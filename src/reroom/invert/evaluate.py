@@ -74,6 +74,7 @@ __all__ = [
     "lights_from_truth",
     "run_invert_true_radiance",
     "true_line_profile",
+    "hidden_as_unobserved",
     "true_point_intensity",
     "true_point_profile",
     "true_window_cells",
@@ -754,17 +755,34 @@ def evaluate_invert(scan_dir: str | Path, invert_dir: str | Path | None = None) 
     return report
 
 
+def hidden_as_unobserved(radiance: np.ndarray) -> np.ndarray:
+    """The truth's per-vertex radiance with the vertices no probe could see set to NaN.
+
+    The generator probes each vertex from just above it; a vertex hidden inside
+    geometry (a wall's bottom row behind a baseboard, the floor under a sofa or a
+    table's leg) reads exactly 0 in every channel. No photo sees those vertices either,
+    so the HDR mesh leaves them unobserved; counted as observed black, they darkened
+    every triangle they belong to and made ``E_ind`` 2-5 % low in the true-radiance
+    runs (docs/invert.md, session 13). NaN rows are unobserved for
+    :func:`reroom.invert.pipeline.run_invert`'s ``radiance_override``.
+    """
+    rad = np.array(radiance, dtype=float, copy=True)
+    rad[(rad == 0.0).all(axis=1)] = np.nan
+    return rad
+
+
 def run_invert_true_radiance(scan_dir: str | Path, out_dir: str | Path, options=None):
     """EVALUATION-ONLY SHORTCUT: :func:`run_invert` with the true per-vertex radiance.
 
     The true radiance of ``ground_truth/vertices.ply`` replaces the HDR mesh's (every
-    vertex counted as observed), so the result measures the transfer and the solve
+    vertex counted as observed but those no probe could see:
+    :func:`hidden_as_unobserved`), so the result measures the transfer and the solve
     alone. Never use this for anything but evaluation.
     """
     from reroom.invert.pipeline import run_invert
 
     verts, _, _ = _truth(Path(scan_dir))
-    rad = np.asarray(verts.vertex_attributes["radiance"], float)
+    rad = hidden_as_unobserved(np.asarray(verts.vertex_attributes["radiance"], float))
     result = run_invert(scan_dir, out_dir, options, radiance_override=rad)
     (Path(out_dir) / "true_radiance.flag").write_text(
         "evaluation-only: solved with the ground truth's radiance\n"

@@ -822,11 +822,9 @@ def localize_scan(
                 placed[k] = pr["position"]
         held = np.ones(len(pos), bool)
         if opt.drop_floating and vert_labels is not None:
-            for k in range(len(pos)):
-                why = _floating(full.caster, verts, vert_labels, placed[k], opt)
-                if why is not None:
-                    held[k] = False
-                    floating.append({"position": placed[k].tolist(), "reason": why})
+            for k, why in _unheld(full.caster, verts, vert_labels, placed, profiles, opt):
+                held[k] = False
+                floating.append({"position": placed[k].tolist(), "reason": why})
         if held.all():
             break
         # A light that nothing can hold is a fit of light the other models miss (a
@@ -1118,6 +1116,28 @@ def _floating(
         f"ceiling within {opt.mount_radius} m of its vertical from {opt.hold_reach} m below "
         "it up (no shade, stand, pendant or wall): dropped"
     )
+
+
+def _unheld(
+    caster, verts: np.ndarray, labels: np.ndarray, placed: np.ndarray, profiles: list, opt
+) -> list[tuple[int, str]]:
+    """``(index, reason)`` of each placed light that nothing in the scan can hold.
+
+    A light the mount test mounted on the surface above (``profiles[k]["mount"]``) is
+    held by that surface. Testing it again with :func:`_floating` would cast upwards
+    from its refitted x, y, where a fused ceiling can sit a few millimetres higher: a
+    light mounted exactly ``mount_depth`` below the ceiling then read as floating and was
+    dropped (session 13: the downlight of session 6's `furnished` scan).
+    """
+    out = []
+    for k, p in enumerate(placed):
+        mount = (profiles[k] or {}).get("mount") or {}
+        if mount.get("mounted"):
+            continue
+        why = _floating(caster, verts, labels, np.asarray(p, float), opt)
+        if why is not None:
+            out.append((k, why))
+    return out
 
 
 def _mount_test(
