@@ -59,7 +59,7 @@ def hemisphere_rays(
     return org, out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def accumulate(
     rays_per_point: int,
     org: np.ndarray,
@@ -95,62 +95,67 @@ def accumulate(
     Writes ``through[r]`` (window crossed, or -1) and ``pane[r]`` (whether a
     front hit touches a window-flagged vertex: those shares are left to the caller,
     which knows the distant basis). Sums are raw counts (not yet divided by R).
+
+    Points run in parallel (numba ``prange``), each point's rays in order, so the sums
+    equal a serial loop's to the bit. The loop is bound by memory latency (three
+    scattered vertex records per ray): the 300-frame scan's 26 M rays took 11.6 s on one
+    core.
     """
     n_win = win_centre.shape[0]
-    for r in range(dirs.shape[0]):
-        p = r // rays_per_point
-        dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
-        th = t_hit[r]
-        # Window openings crossed before the hit (rays_through_windows).
-        best, best_t = -1, np.inf
-        for w in range(n_win):
-            denom = dx * win_normal[w, 0] + dy * win_normal[w, 1] + dz * win_normal[w, 2]
-            if denom >= -1e-9:
+    for p in nb.prange(dirs.shape[0] // rays_per_point):
+        for r in range(p * rays_per_point, (p + 1) * rays_per_point):
+            dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+            th = t_hit[r]
+            # Window openings crossed before the hit (rays_through_windows).
+            best, best_t = -1, np.inf
+            for w in range(n_win):
+                denom = dx * win_normal[w, 0] + dy * win_normal[w, 1] + dz * win_normal[w, 2]
+                if denom >= -1e-9:
+                    continue
+                t = (
+                    (win_centre[w, 0] - org[r, 0]) * win_normal[w, 0]
+                    + (win_centre[w, 1] - org[r, 1]) * win_normal[w, 1]
+                    + (win_centre[w, 2] - org[r, 2]) * win_normal[w, 2]
+                ) / denom
+                if not (t > 0.0 and t <= th + tolerance and t < best_t):
+                    continue
+                rx = org[r, 0] + t * dx - win_centre[w, 0]
+                ry = org[r, 1] + t * dy - win_centre[w, 1]
+                rz = org[r, 2] + t * dz - win_centre[w, 2]
+                su = abs(rx * win_u[w, 0] + ry * win_u[w, 1] + rz * win_u[w, 2]) - win_hu[w]
+                sv = abs(rx * win_v[w, 0] + ry * win_v[w, 1] + rz * win_v[w, 2]) - win_hv[w]
+                inside = su <= 0.0 and sv <= 0.0
+                margin = su <= tolerance and sv <= tolerance and th > t + tolerance
+                if inside or margin:
+                    best, best_t = w, t
+            through[r] = best
+            pane[r] = False
+            if best >= 0:
+                p_light[p] += 1.0
                 continue
-            t = (
-                (win_centre[w, 0] - org[r, 0]) * win_normal[w, 0]
-                + (win_centre[w, 1] - org[r, 1]) * win_normal[w, 1]
-                + (win_centre[w, 2] - org[r, 2]) * win_normal[w, 2]
-            ) / denom
-            if not (t > 0.0 and t <= th + tolerance and t < best_t):
+            f = face[r]
+            if f < 0:
+                p_unobs[p] += 1.0
                 continue
-            rx = org[r, 0] + t * dx - win_centre[w, 0]
-            ry = org[r, 1] + t * dy - win_centre[w, 1]
-            rz = org[r, 2] + t * dz - win_centre[w, 2]
-            su = abs(rx * win_u[w, 0] + ry * win_u[w, 1] + rz * win_u[w, 2]) - win_hu[w]
-            sv = abs(rx * win_v[w, 0] + ry * win_v[w, 1] + rz * win_v[w, 2]) - win_hv[w]
-            inside = su <= 0.0 and sv <= 0.0
-            margin = su <= tolerance and sv <= tolerance and th > t + tolerance
-            if inside or margin:
-                best, best_t = w, t
-        through[r] = best
-        pane[r] = False
-        if best >= 0:
-            p_light[p] += 1.0
-            continue
-        f = face[r]
-        if f < 0:
-            p_unobs[p] += 1.0
-            continue
-        if face_normals[f, 0] * dx + face_normals[f, 1] * dy + face_normals[f, 2] * dz >= 0.0:
-            p_unobs[p] += 1.0  # back face (or edge-on)
-            continue
-        u, v = uv[r, 0], uv[r, 1]
-        for k in range(3):
-            c = faces[f, k]
-            bk = 1.0 - u - v if k == 0 else (u if k == 1 else v)
-            ind[p, 0] += bk * vdata[c, 0]
-            ind[p, 1] += bk * vdata[c, 1]
-            ind[p, 2] += bk * vdata[c, 2]
-            p_obs[p] += bk * vdata[c, 3]
-            p_unobs[p] += bk * vdata[c, 4]
-            a = int(vdata[c, 5])
-            if a >= 0:
-                area[p, a] += bk
-                p_light[p] += bk
-            if vdata[c, 6] >= 0:
-                pane[r] = True
-                p_light[p] += bk
+            if face_normals[f, 0] * dx + face_normals[f, 1] * dy + face_normals[f, 2] * dz >= 0.0:
+                p_unobs[p] += 1.0  # back face (or edge-on)
+                continue
+            u, v = uv[r, 0], uv[r, 1]
+            for k in range(3):
+                c = faces[f, k]
+                bk = 1.0 - u - v if k == 0 else (u if k == 1 else v)
+                ind[p, 0] += bk * vdata[c, 0]
+                ind[p, 1] += bk * vdata[c, 1]
+                ind[p, 2] += bk * vdata[c, 2]
+                p_obs[p] += bk * vdata[c, 3]
+                p_unobs[p] += bk * vdata[c, 4]
+                a = int(vdata[c, 5])
+                if a >= 0:
+                    area[p, a] += bk
+                    p_light[p] += bk
+                if vdata[c, 6] >= 0:
+                    pane[r] = True
+                    p_light[p] += bk
 
 
 @nb.njit(cache=True, inline="always")
