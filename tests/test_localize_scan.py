@@ -522,3 +522,24 @@ def test_shared_nnls_matches_plain_nnls():
     np.testing.assert_allclose(coef, _nonneg_fit(a, b), atol=1e-9)
     np.testing.assert_allclose(resid, b - a @ coef, atol=1e-9)
     assert (coef >= 0).all()
+
+
+def test_joint_fit_keeps_each_light_within_its_own_bounds():
+    # A light found inside a fitting is held on the fitting's axis (hold_in_fitting) by
+    # per-light bounds; let loose, the fit is free in the room.
+    from reroom.localize.scan import _joint_fit
+
+    prob, _, _, _ = _shade_problem()
+    start = np.array([[2.1, 1.55, 1.45]])
+    room = (np.full(3, 0.05), SIZE - 0.05)
+    free, i_free, _, _ = _joint_fit(
+        prob, start, np.array([1.0]), np.array([1.0]), np.zeros(0), room, 0.05
+    )
+    assert np.linalg.norm(free[0] - [2.0, 1.5, 1.5]) < 0.02, free
+    # Bounds that leave out the bulb's place: the fit stops on their edge, nearest to it.
+    lo, hi = np.array([[2.08, 1.45, 1.4]]), np.array([[2.2, 1.6, 1.6]])
+    held, _, _, _ = _joint_fit(
+        prob, start, np.array([1.0]), np.array([1.0]), np.zeros(0), (lo, hi), 0.05
+    )
+    assert np.all(held >= lo - 1e-9) and np.all(held <= hi + 1e-9), held
+    assert abs(held[0, 0] - 2.08) < 1e-3, held

@@ -197,6 +197,14 @@ class ScanLocalizeOptions:
         stand, pendant or wall; :func:`_floating`), then refit and place the others again.
         On `box` such a light fitted the grazing patch of window light on a wall that
         the window's 96 cells cannot draw (docs/localize.md).
+    hold_in_fitting:
+        A light the discovery finds inside a fitting the scan shows (:func:`_enclosed`:
+        a lamp's shade) starts on the fitting's axis (:func:`_fitting_axis`) and stays
+        within ``fitting_slack`` of it across and ``fitting_height`` of its starting
+        height in the joint fits. Let loose, it drifted out of the shade while keeping
+        the shade's visibility, and was then dropped as floating (docs/localize.md).
+    fitting_slack, fitting_height:
+        See ``hold_in_fitting`` (metres).
     hold_reach:
         Metres below a light within which a body (a stand's top, a table lamp's base)
         holds it (``drop_floating``).
@@ -244,6 +252,9 @@ class ScanLocalizeOptions:
     search_albedo_bound: float = 0.05
     mount_unsupported: bool = True
     drop_floating: bool = True
+    hold_in_fitting: bool = True
+    fitting_slack: float = 0.05
+    fitting_height: float = 0.15
     hold_reach: float = 0.5
     downward_candidates: bool = False
     soft_scale: float = 0.3
@@ -589,9 +600,9 @@ def _joint_fit(
         jm[:, 4 * k :] = -prob.other
         return jm / prob.scale
 
-    lo, hi = bounds
-    lb = np.concatenate([np.tile(lo, k), np.zeros(k + m)])
-    ub = np.concatenate([np.tile(hi, k), np.full(k + m, np.inf)])
+    lo, hi = (np.broadcast_to(np.asarray(b, float), (k, 3)).ravel() for b in bounds)
+    lb = np.concatenate([lo, np.zeros(k + m)])
+    ub = np.concatenate([hi, np.full(k + m, np.inf)])
     z0 = np.clip(np.concatenate([pos.ravel(), inten, x]), lb, np.where(np.isinf(ub), ub, ub - 1e-9))
     sol = least_squares(
         res, z0, jac=jac, bounds=(lb, ub), method="trf", loss="soft_l1", f_scale=soft, max_nfev=100
@@ -718,7 +729,9 @@ def localize_scan(
         kind = np.r_[kind, np.ones(len(cand), bool)]
         cand = np.vstack([cand, cand])
     s_norm2 = (s_grid**2).sum(axis=0) + 1e-300
-    bounds = (lo + 0.05, hi - 0.05)
+    box_lo, box_hi = lo + 0.05, hi - 0.05
+    # Per light: the room, or the fitting a light was found in (see below).
+    bounds = (np.zeros((0, 3)), np.zeros((0, 3)))
     soft = opt.soft_scale
 
     # First albedos: the robust minimum of pi L / E_ind; first strengths of the other lights.
@@ -762,20 +775,33 @@ def localize_scan(
         new_pos = np.vstack([pos, cand[j]])
         new_int = np.concatenate([inten, [start[j]]])
         new_down = np.r_[down, kind[j]]
+        b_lo, b_hi = box_lo, box_hi
+        if opt.hold_in_fitting and vert_labels is not None:
+            axis = _fitting_axis(verts, vert_labels, cand[j], opt.mount_radius)
+            if axis is not None:
+                # Found inside a fitting the scan shows (a lamp's shade): the fit keeps the
+                # starting point's visibility (the shade's openings), so a light let
+                # loose drifts out of the shade and keeps them (docs/localize.md,
+                # session 13). Keep it on the fitting's axis, at about its height.
+                new_pos[-1, :2] = axis
+                d = np.array([opt.fitting_slack, opt.fitting_slack, opt.fitting_height])
+                b_lo = np.maximum(box_lo, new_pos[-1] - d)
+                b_hi = np.minimum(box_hi, new_pos[-1] + d)
+        new_bounds = (np.vstack([bounds[0], b_lo]), np.vstack([bounds[1], b_hi]))
         new_u, new_x = u, x
         if opt.search_albedo_update == "anchored":
             # One step from the robust minimum: the update has no fixed point (docs).
             new_pos, new_int, new_x, _r = _joint_fit(
-                prob, new_pos, new_int, u0, new_x, bounds, soft, new_down
+                prob, new_pos, new_int, u0, new_x, new_bounds, soft, new_down
             )
             new_u = _update_albedo(prob, new_pos, new_int, new_x, u0, new_down)
             new_pos, new_int, new_x, _r = _joint_fit(
-                prob, new_pos, new_int, new_u, new_x, bounds, soft, new_down
+                prob, new_pos, new_int, new_u, new_x, new_bounds, soft, new_down
             )
         else:
             for _ in range(2):
                 new_pos, new_int, new_x, _r = _joint_fit(
-                    prob, new_pos, new_int, new_u, new_x, bounds, soft, new_down
+                    prob, new_pos, new_int, new_u, new_x, new_bounds, soft, new_down
                 )
                 if opt.search_albedo_update in ("iterated", "bounded"):
                     new_u = _update_albedo(prob, new_pos, new_int, new_x, new_u, new_down)
@@ -783,7 +809,7 @@ def localize_scan(
                     b = 1.0 + opt.search_albedo_bound
                     new_u = np.clip(new_u, u0 / b, u0 * b)
         new_pos, new_int, new_x, new_rms = _joint_fit(
-            prob, new_pos, new_int, new_u, new_x, bounds, soft, new_down
+            prob, new_pos, new_int, new_u, new_x, new_bounds, soft, new_down
         )
         share = new_int[-1] / max(float(new_int.sum()), 1e-300)
         entry.update(positions=new_pos.tolist(), intensities=new_int.tolist(), rms=new_rms)
@@ -792,11 +818,13 @@ def localize_scan(
             reason = f"new light carries {share:.1%} < {opt.min_power:.0%} of the intensity"
             break
         pos, inten, down, u, x, rms = new_pos, new_int, new_down, new_u, new_x, new_rms
+        bounds = new_bounds
         if progress is not None:
             progress("localize", it + 1, opt.max_lights)
     keep = inten >= opt.min_power * max(float(inten.sum()), 1e-300)
     pos, inten, down = pos[keep], inten[keep], down[keep]
-    pos, inten, x, down, pruned = _prune(
+    bounds = (bounds[0][keep], bounds[1][keep])
+    pos, inten, x, down, pruned, bounds = _prune(
         prob, pos, inten, u, x, bounds, soft, opt.prune_ratio, down
     )
     # Albedos of every class (the floor too) from the lights found, then the goniometric
@@ -830,6 +858,7 @@ def localize_scan(
         # A light that nothing can hold is a fit of light the other models miss (a
         # window's grazing patch on `box`): drop it, refit the rest, place them again.
         pos, inten, down = pos[held], inten[held], down[held]
+        bounds = (bounds[0][held], bounds[1][held])
         if len(pos):
             pos, inten, x, rms = _joint_fit(prob, pos, inten, u_found, x, bounds, soft, down)
     u = _albedo_from(full, direct, u)
@@ -884,7 +913,8 @@ def _prune(prob: _Problem, pos, inten, u, x, bounds, soft: float, ratio: float, 
     """Drop lights the data do not need: leave each out (weakest first), re-solve, and drop
     it when the cost grows by less than ``ratio`` (the thesis's real scenes drop weak lights,
     §6.6.3; 2D: :func:`~reroom.localize.solve.prune_lights`). Returns the lights, the other
-    lights' strengths, the ``down`` flags and, per light tried, the cost ratio measured."""
+    lights' strengths, the ``down`` flags, per light tried the cost ratio measured, and the
+    kept lights' position bounds (``bounds``: per light, ``(k, 3)`` each)."""
     tried: list[dict] = []
     down = np.zeros(len(pos), bool) if down is None else np.asarray(down, bool)
     while len(pos) > 1:
@@ -894,16 +924,17 @@ def _prune(prob: _Problem, pos, inten, u, x, bounds, soft: float, ratio: float, 
         dropped = False
         for i in np.argsort(inten):
             keep = np.arange(len(pos)) != i
-            p2, i2, x2, _ = _joint_fit(prob, pos[keep], inten[keep], u, x, bounds, soft, down[keep])
+            b2 = (bounds[0][keep], bounds[1][keep])
+            p2, i2, x2, _ = _joint_fit(prob, pos[keep], inten[keep], u, x, b2, soft, down[keep])
             grow = _cost(prob, p2, i2, u, x2, soft, down[keep]) / max(base, 1e-300)
             tried.append({"position": pos[i].tolist(), "cost_ratio_without": grow})
             if grow < ratio:
-                pos, inten, x, down, dropped = p2, i2, x2, down[keep], True
+                pos, inten, x, down, dropped, bounds = p2, i2, x2, down[keep], True, b2
                 tried[-1]["dropped"] = True
                 break
         if not dropped:
             break
-    return pos, inten, x, down, tried
+    return pos, inten, x, down, tried, bounds
 
 
 def _soft_cost(r: np.ndarray, scale: float) -> float:
