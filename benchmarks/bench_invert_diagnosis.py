@@ -121,13 +121,9 @@ def reprobe(scan: Path, spp: int, eval_dir: Path) -> None:
     """Write ``eval_dir``: ``scan`` with its true vertex radiance re-probed at ``spp``."""
     import trimesh
 
-    from reroom.render import mitsuba
     from reroom.render.frames import probe_radiance
-    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
 
-    mi = mitsuba()
-    scene_dir = scan / "ground_truth" / "scene"
-    scene = mi.load_dict(mitsuba_scene_dict(load_scene_description(scene_dir), scene_dir))
+    scene = _truth_scene(scan)
     gt = read_ply(scan / "ground_truth" / "vertices.ply")
     mesh = read_ply(scan / "mesh.ply")
     normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
@@ -150,6 +146,36 @@ def _truth(scan: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         hidden_as_unobserved(np.asarray(a["radiance"], float)),
         np.asarray(a["albedo"], float),
         np.asarray(a["label"]).astype(int),
+    )
+
+
+def _truth_scene(scan: Path, max_depth: int | None = None):
+    """The ground truth's Mitsuba scene (``max_depth`` 2: emission and direct light only)."""
+    from reroom.render import mitsuba
+    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
+
+    scene_dir = scan / "ground_truth" / "scene"
+    desc = load_scene_description(scene_dir)
+    if max_depth is not None:
+        desc["integrator"] = {"type": "path", "max_depth": max_depth}
+    return mitsuba().load_dict(mitsuba_scene_dict(desc, scene_dir))
+
+
+def _with_lights_fixed(problem, fixed: dict[int, np.ndarray]):
+    """``problem`` with the lights ``fixed`` (block index -> intensities) moved into ``E_ind``."""
+    import scipy.sparse as sp
+
+    f = sp.csr_matrix(problem.transfer)
+    off = np.concatenate([[0], np.cumsum([b.size for b in problem.lights])]).astype(int)
+    e_fix = sum(np.asarray(f[:, off[i] : off[i + 1]] @ v) for i, v in fixed.items())
+    keep = np.concatenate(
+        [np.arange(off[i], off[i + 1]) for i in range(len(problem.lights)) if i not in fixed]
+    ).astype(int)
+    return dataclasses.replace(
+        problem,
+        indirect=problem.indirect + e_fix,
+        transfer=f[:, keep],
+        lights=[b for i, b in enumerate(problem.lights) if i not in fixed],
     )
 
 
@@ -278,16 +304,12 @@ def _true_lights_scan(scan: Path, work: Path) -> Path:
 def truth_run(scan: Path, work: Path, solve: SolveOptions) -> None:
     """``reroom invert`` with the true radiance *and* the true lights: what is left is
     the light models' and the solve's own error (e.g. two lights confused)."""
-    true_rad, _, _ = _truth(scan)
-    src = _true_lights_scan(scan, work)
-    out = work / "true_radiance_true_lights"
-    _invert(src, out, true_rad, solve)
+    res, src, out = _truth_problem(scan, work, solve)
     print(
         "| run | wall | floor | ceiling | lights (power error, distribution L2) |\n|---|---|---|---|---|"
     )
     print(_row("true radiance, true lights", evaluate_invert(src, out)), flush=True)
-    res = _invert_result_cache.get(out)
-    fixed = _window_from_truth(scan, res.problem, np.ones(3)) if res is not None else None
+    fixed = _window_from_truth(scan, res.problem, np.ones(3))
     if fixed is None:
         return
     # The same problem with the window's cells fixed to the truth's (in E_ind): how much of
@@ -315,9 +337,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
 
     from reroom.invert.evaluate import true_window_cells
     from reroom.invert.solve import indirect_weights
-    from reroom.render import mitsuba
     from reroom.render.frames import probe_radiance
-    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
 
     res, src, out = _truth_problem(scan, work, solve)
     prob, sol, rows = res.problem, res.solve, res.problem_vertices
@@ -359,18 +379,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
     )
     lines = [i for i, b in enumerate(prob.lights) if b.kind == "line"]
     if lines:
-        e_fix = sum(
-            np.asarray(f[:, off[i] : off[i + 1]] @ true_int[prob.lights[i].name]) for i in lines
-        )
-        keep = np.concatenate(
-            [np.arange(off[i], off[i + 1]) for i in range(len(prob.lights)) if i not in lines]
-        )
-        fixed = dataclasses.replace(
-            prob,
-            indirect=prob.indirect + e_fix,
-            transfer=f[:, keep],
-            lights=[b for i, b in enumerate(prob.lights) if i not in lines],
-        )
+        fixed = _with_lights_fixed(prob, {i: true_int[prob.lights[i].name] for i in lines})
         again = solve_lighting(fixed, solve)
         print(
             f"line lights fixed at their true power, the rest re-solved: objective "
@@ -381,11 +390,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
             )
         )
     # The path tracer's direct (depth 2) and total radiance at the receivers.
-    mi = mitsuba()
-    scene_dir = scan / "ground_truth" / "scene"
-    desc = load_scene_description(scene_dir)
-    desc["integrator"] = {"type": "path", "max_depth": 2}
-    scene = mi.load_dict(mitsuba_scene_dict(desc, scene_dir))
+    scene = _truth_scene(scan, max_depth=2)
     mesh = read_ply(scan / "mesh.ply")
     tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     pts, nrm = np.asarray(mesh.vertices)[rows], np.asarray(tm.vertex_normals)[rows]
@@ -437,10 +442,8 @@ def interpolation(scan: Path, spp: int = 2048, points: int = 600) -> None:
     """Path-traced radiance inside faces against the interpolated vertex radiance."""
     import trimesh
 
-    from reroom.render import mitsuba
     from reroom.render.frames import probe_radiance
     from reroom.synth.labels import LABEL_NAMES
-    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
 
     true_rad, _, label = _truth(scan)
     mesh = read_ply(scan / "mesh.ply")
@@ -457,9 +460,7 @@ def interpolation(scan: Path, spp: int = 2048, points: int = 600) -> None:
     hidden = np.isnan(true_rad).any(axis=1)  # no probe saw them (inside geometry)
     seen = ~hidden[fc[f]].any(axis=1)
     interp = (bc[..., None] * np.nan_to_num(true_rad)[fc[f]]).sum(axis=1)
-    mi = mitsuba()
-    scene_dir = scan / "ground_truth" / "scene"
-    scene = mi.load_dict(mitsuba_scene_dict(load_scene_description(scene_dir), scene_dir))
+    scene = _truth_scene(scan)
     traced, _ = probe_radiance(scene, pts, tm.face_normals[f], spp, seed=9)
     at_vertex, _ = probe_radiance(scene, v[fc[f, 0]], tm.vertex_normals[fc[f, 0]], spp, seed=10)
     ok = ~hidden[fc[f, 0]]
@@ -542,8 +543,6 @@ def _window_from_truth(scan: Path, problem, k: np.ndarray):
     The true HDRI averaged per cube cell over the directions through the window
     (:func:`reroom.invert.evaluate.true_window_cells`), times ``k``; None without a window.
     """
-    import scipy.sparse as sp
-
     from reroom.invert.evaluate import true_window_cells
 
     gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
@@ -554,33 +553,18 @@ def _window_from_truth(scan: Path, problem, k: np.ndarray):
     wi = blocks[0]
     n = int(round(np.sqrt(problem.lights[wi].size / 6)))
     cells, _ = true_window_cells(true_wins[0], scan / "ground_truth" / "scene", n=n)
-    off = np.concatenate([[0], np.cumsum([b.size for b in problem.lights])]).astype(int)
-    f = sp.csr_matrix(problem.transfer)
-    e_win = np.asarray(f[:, off[wi] : off[wi + 1]] @ (cells * k))
-    keep = np.r_[0 : off[wi], off[wi + 1] : f.shape[1]]
-    return dataclasses.replace(
-        problem,
-        indirect=problem.indirect + e_win,
-        transfer=f[:, keep],
-        lights=[b for i, b in enumerate(problem.lights) if i != wi],
-    )
+    return _with_lights_fixed(problem, {wi: cells * k})
 
 
 def indirect(scan: Path, work: Path) -> None:
     """``E_ind`` (true radiance, hemisphere rays) against the path tracer's indirect light."""
     import trimesh
 
-    from reroom.render import mitsuba
     from reroom.render.frames import probe_radiance
-    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
 
     true_rad, true_albedo, label = _truth(scan)
     res = _invert(scan, work / "indirect_true_radiance", true_rad)
-    mi = mitsuba()
-    scene_dir = scan / "ground_truth" / "scene"
-    desc = load_scene_description(scene_dir)
-    desc["integrator"] = {"type": "path", "max_depth": 2}  # emission + direct light only
-    scene = mi.load_dict(mitsuba_scene_dict(desc, scene_dir))
+    scene = _truth_scene(scan, max_depth=2)  # emission + direct light only
     mesh = read_ply(scan / "mesh.ply")
     rows = res.problem_vertices
     normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)

@@ -98,8 +98,8 @@ def accumulate(
 
     Points run in parallel (numba ``prange``), each point's rays in order, so the sums
     equal a serial loop's to the bit. The loop is bound by memory latency (three
-    scattered vertex records per ray): the 300-frame scan's 26.5 M rays took 10.2 s on
-    one core, 5.2 s on two.
+    scattered vertex records per ray): the 300-frame scan's 26.5 M rays take 8.3 s
+    serial, 4.9 s on two cores (``benchmarks/bench_hemisphere_bookkeeping.py``).
     """
     n_win = win_centre.shape[0]
     for p in nb.prange(dirs.shape[0] // rays_per_point):
