@@ -543,3 +543,10 @@ def test_joint_fit_keeps_each_light_within_its_own_bounds():
     )
     assert np.all(held >= lo - 1e-9) and np.all(held <= hi + 1e-9), held
     assert abs(held[0, 0] - 2.08) < 1e-3, held
+
+
+@pytest.mark.parametrize("slack, height", [(0.0, 0.15), (0.05, -0.1)])
+def test_fitting_bounds_must_be_positive(tmp_path: Path, slack: float, height: float):
+    opt = ScanLocalizeOptions(fitting_slack=slack, fitting_height=height)
+    with pytest.raises(ValueError, match="fitting_slack .* must be positive"):
+        localize_scan(tmp_path, opt)

@@ -699,6 +699,11 @@ def localize_scan(
         raise ValueError(
             f"search_albedo_update {opt.search_albedo_update!r}: bounded, anchored, iterated or off"
         )
+    if opt.hold_in_fitting and not (opt.fitting_slack > 0 and opt.fitting_height > 0):
+        raise ValueError(
+            f"fitting_slack {opt.fitting_slack} and fitting_height {opt.fitting_height} must be "
+            "positive (metres) with hold_in_fitting"
+        )
     full, verts, layout, labels, vert_labels = _build_problem(scan, opt, notes)
     rng = np.random.default_rng(opt.seed + 1)
     search = np.flatnonzero(np.isin(labels, opt.classes))
