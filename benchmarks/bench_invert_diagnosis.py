@@ -54,6 +54,18 @@ reads ``ground_truth/``, which the estimate never does.
     Path-traced radiance at random points inside the scan mesh's faces against the
     barycentric interpolation of the truth's vertex radiance, per label: the radiance
     field that ``E_ind``'s rays read between vertices.
+``--unobserved``
+    What eq. 5.9's fill of the unobserved hemisphere does: ``reroom invert`` with the true
+    radiance everywhere the truth has it, and again only where the HDR mesh is observed.
+    Prints ``E_ind`` of the second over the first on their common receivers, per cluster;
+    the second's problem re-solved on those rows, and again with the first's ``E_ind``
+    (albedo errors, and each light's power over the first's on the same rows); and for
+    1500 receivers per cluster the hemisphere sums (raw ``E_ind``, observed and unobserved
+    fractions) under both masks: how bright the surfaces the HDR mesh misses really are,
+    against the mean that eq. 5.9 gives them.
+``--indirect-scale S[,S...]``
+    The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
+    error in the indirect light moves the albedos and the lights.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -537,6 +549,147 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
         print(f"| {name} | " + " | ".join(_pct(x) for x in r.albedo / truth_rho - 1) + " |")
 
 
+def _albedo_text(names, albedo, truth_rho) -> str:
+    err = albedo / truth_rho - 1
+    return "; ".join(f"{n} {_pct(e)}" for n, e in zip(names, err, strict=True))
+
+
+def _rows_of(problem, rows: np.ndarray):
+    """``problem`` restricted to the receivers ``rows``."""
+    return dataclasses.replace(
+        problem,
+        radiance=problem.radiance[rows],
+        indirect=problem.indirect[rows],
+        cluster=problem.cluster[rows],
+        transfer=problem.transfer[rows],
+    )
+
+
+def unobserved(scan: Path, work: Path, solve: SolveOptions, per_cluster: int = 1500) -> None:
+    """The true radiance everywhere the truth has it vs only where the HDR mesh is observed."""
+    from reroom.hdr.observe import vertex_normals
+    from reroom.invert.pipeline import _fixture_vertices, emitter_surfaces
+    from reroom.invert.transfer import hemisphere_transfer
+    from reroom.lights import load_lights
+    from reroom.rays import RayCaster
+
+    true_rad, true_albedo, label = _truth(scan)
+    _, hdr_observed = _hdr(scan)
+    truth_seen = np.isfinite(true_rad).all(axis=1)
+    both = hdr_observed & truth_seen
+    full = _invert(scan, work / "unobserved_full", true_rad, solve)
+    masked = _invert(
+        scan, work / "unobserved_masked", np.where(both[:, None], true_rad, np.nan), solve
+    )
+    pf, pm = full.problem, masked.problem
+    truth_rho = np.stack([true_albedo[label == CLUSTERS[c]].mean(axis=0) for c in pf.cluster_names])
+    where = {int(v): i for i, v in enumerate(full.problem_vertices)}
+    in_full = np.array([int(v) in where for v in masked.problem_vertices])
+    im = np.flatnonzero(in_full)
+    jf = np.array([where[int(v)] for v in masked.problem_vertices[in_full]], dtype=int)
+    print(
+        f"\nvertices: {len(label)}; the truth sees {int(truth_seen.sum())}, the HDR mesh "
+        f"{int(hdr_observed.sum())}; receivers {len(jf)} in common ({len(pf.radiance)} / "
+        f"{len(pm.radiance)})"
+    )
+    print("\nE_ind, HDR-observed truth / all of the truth, on the common receivers:\n")
+    print("| cluster | r / g / b |\n|---|---|")
+    for c, name in enumerate(pf.cluster_names):
+        sel = pm.cluster[im] == c
+        ratio = pm.indirect[im][sel].sum(axis=0) / pf.indirect[jf][sel].sum(axis=0)
+        print(f"| {name} | " + " / ".join(f"{x:.3f}" for x in ratio) + " |")
+
+    reference = solve_lighting(_rows_of(pf, jf), solve)
+    print("\nre-solves on the common receivers (lights: power / the first row's):\n")
+    print("| problem | albedo error | lights |\n|---|---|---|")
+    cases = [
+        ("all of the truth", _rows_of(pf, jf)),
+        ("HDR-observed truth (the fill gives the rest)", _rows_of(pm, im)),
+        (
+            "HDR-observed truth, E_ind from all of the truth",
+            dataclasses.replace(_rows_of(pm, im), indirect=pf.indirect[jf]),
+        ),
+    ]
+    for name, prob in cases:
+        r = reference if name == cases[0][0] else solve_lighting(prob, solve)
+        lights = "; ".join(
+            f"{n} "
+            + "/".join(
+                f"{x:.3f}" for x in r.intensities[n].sum(0) / reference.intensities[n].sum(0)
+            )
+            for n in r.intensities
+        )
+        print(f"| {name} | {_albedo_text(pf.cluster_names, r.albedo, truth_rho)} | {lights} |")
+
+    # The hemisphere sums at a sample of receivers under both masks (512 rays, no windows:
+    # their rays count as light, not as observed or unobserved surface).
+    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
+    lights = load_lights(scan / "lights" / "lights.json")
+    nv = len(mesh.vertices)
+    areas, _, area_of, window_of = emitter_surfaces(lights.lights, lights.vertex_light_id, nv)
+    fixture = _fixture_vertices(np.asarray(mesh.vertices, float), lights.lights, 0.05)
+    area_of[fixture & (area_of < 0) & (window_of < 0)] = len(areas)
+    on_light = (np.asarray(lights.vertex_light_id) >= 0) | fixture
+    normals = vertex_normals(mesh)
+    caster = RayCaster(mesh)
+    rad = np.where(truth_seen[:, None], true_rad, 0.0)
+    rng = np.random.default_rng(0)
+    print(
+        "\nhemisphere sums at receivers (green; E_ind raw = over the observed hits, "
+        "rescaled = eq. 5.9):\n"
+    )
+    print(
+        "| cluster | mask | E_ind raw | rescaled | observed fraction | unobserved fraction | "
+        "radiance per unit of hemisphere, newly unobserved / observed |\n|---|---|---|---|---|---|---|"
+    )
+    for name, lab in CLUSTERS.items():
+        cand = np.flatnonzero(both & (label == lab) & ~on_light)
+        if len(cand) == 0:
+            continue
+        recv = rng.choice(cand, min(per_cluster, len(cand)), replace=False)
+        sums = {}
+        for mask_name, seen in [("all of the truth", truth_seen), ("HDR-observed", both)]:
+            h = hemisphere_transfer(
+                caster, mesh, recv, normals, rad * seen[:, None], seen, area_of, [], None,
+                rays_per_vertex=512, seed=1, window_of_vertex=window_of,
+            )  # fmt: skip
+            sums[mask_name] = h
+        a, b = sums["all of the truth"], sums["HDR-observed"]
+        lost = a.p_observed.sum() - b.p_observed.sum()
+        dark = (a.indirect[:, 1].sum() - b.indirect[:, 1].sum()) / max(lost, 1e-12)
+        mean = b.indirect[:, 1].sum() / b.p_observed.sum()
+        for mask_name, h in sums.items():
+            extra = f"{dark:.3g} / {mean:.3g}" if mask_name == "HDR-observed" else ""
+            print(
+                f"| {name} | {mask_name} | {h.indirect[:, 1].sum():.1f} | "
+                f"{h.indirect_rescaled()[:, 1].sum():.1f} | {h.p_observed.mean():.4f} | "
+                f"{h.p_unobserved.mean():.4f} | {extra} |"
+            )
+
+
+def indirect_scales(scan: Path, work: Path, solve: SolveOptions, scales: list[float]) -> None:
+    """The truth run's problem re-solved with E_ind scaled: which way its error moves things."""
+    res, src, out = _truth_problem(scan, work, solve)
+    prob, sol = res.problem, res.solve
+    report = evaluate_invert(src, out)
+    rho_true = sol.albedo / (
+        1.0 + np.array([report["clusters"][c]["relative_error"] for c in prob.cluster_names])
+    )
+    true_power = {
+        e["name"]: sol.intensities[e["name"]].sum(axis=0)
+        / (1.0 + np.asarray(e["power_relative_error"]))
+        for e in report["lights"]
+    }
+    print("\n| E_ind x | albedo error | power error (sum of the solved intensities) |")
+    print("|---|---|---|")
+    for s in scales:
+        r = solve_lighting(dataclasses.replace(prob, indirect=prob.indirect * s), solve)
+        lights = "; ".join(
+            f"{n} {_pct(r.intensities[n].sum(axis=0) / true_power[n] - 1)}" for n in true_power
+        )
+        print(f"| {s:g} | {_albedo_text(prob.cluster_names, r.albedo, rho_true)} | {lights} |")
+
+
 def _window_from_truth(scan: Path, problem, k: np.ndarray):
     """``problem`` with its (first) window's light moved into ``E_ind`` at the true cells.
 
@@ -778,6 +931,12 @@ def main() -> None:
         action="store_true",
         help="each light rendered alone vs the solve's transfer (with and without clearance)",
     )
+    ap.add_argument(
+        "--unobserved", action="store_true", help="what eq. 5.9's fill of unseen surfaces does"
+    )
+    ap.add_argument(
+        "--indirect-scale", default="", help="comma-separated E_ind scales for the truth run"
+    )
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
@@ -793,6 +952,11 @@ def main() -> None:
         truth_run(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.at_truth:
         at_truth(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+    if args.indirect_scale:
+        scales = [float(x) for x in args.indirect_scale.split(",")]
+        indirect_scales(args.scan, args.work, SolveOptions(**json.loads(args.solve)), scales)
+    if args.unobserved:
+        unobserved(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.interpolation:
         interpolation(args.scan)
     if args.light_swaps:

@@ -101,3 +101,9 @@ def test_hdr_then_layout_commands(tmp_path: Path) -> None:
     result = runner.invoke(app, ["layout", str(scan)])
     assert result.exit_code == 0, result.output
     assert (scan / "layout" / "layout.json").is_file()
+
+
+def test_invert_refuses_an_unknown_fill(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["invert", str(tmp_path), "--unobserved-fill", "zero"])
+    assert result.exit_code == 2
+    assert "--unobserved-fill must be one of bounce, mean" in result.output

@@ -428,9 +428,16 @@ def invert(
         float | None,
         typer.Option(help="Texel size of those textures, m (default: the pixel footprint)."),
     ] = None,
+    unobserved_fill: Annotated[
+        str,
+        typer.Option(
+            help="Radiance of the surfaces no photo saw, for the indirect light: bounce (one "
+            "bounce of the observed light) | mean (the thesis's eq. 5.9)."
+        ),
+    ] = "bounce",
 ) -> None:
     """Inverse rendering: light intensities and distributions, albedos (thesis ch. 5)."""
-    from reroom.invert.pipeline import InvertOptions, run_invert
+    from reroom.invert.pipeline import UNOBSERVED_FILLS, InvertOptions, run_invert
     from reroom.invert.solve import SolveOptions
 
     opts = InvertOptions(
@@ -441,7 +448,14 @@ def invert(
         refine_points=refine_points,
         textures=textures,
         texel=texel,
+        unobserved_fill=unobserved_fill,
     )
+    if unobserved_fill not in UNOBSERVED_FILLS:
+        console.print(
+            f"[red]error:[/] --unobserved-fill must be one of {', '.join(UNOBSERVED_FILLS)}, "
+            f"got {unobserved_fill!r}"
+        )
+        raise typer.Exit(2)
     if texel is not None and not texel > 0:
         console.print(f"[red]error:[/] --texel must be positive, got {texel}")
         raise typer.Exit(2)

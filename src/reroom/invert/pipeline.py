@@ -27,6 +27,7 @@ from reroom.hdr.observe import vertex_normals
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
+from reroom.invert.fill import DEFAULT_FILL_ALBEDO, bounce_fill
 from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -171,6 +172,15 @@ class InvertOptions:
         fraction: on a scan whose lights explain the photos poorly (the demo, whose
         tube and window were not detected) a 0.4 % drop came with the panel's power
         doubling, while real improvements measured 24-25 % (docs/invert.md).
+    unobserved_fill : str
+        What the indirect light takes for the surfaces no photo saw. ``"bounce"``: one
+        bounce of the observed light with reflectance ``fill_albedo``
+        (:func:`reroom.invert.fill.bounce_fill`). ``"mean"``: the thesis's eq. 5.9, the
+        mean radiance of the rest of each receiver's hemisphere, which gives the hidden
+        undersides of the furniture the brightness of the walls and ceiling (albedos
+        3-5 % low, lights 4-12 % strong on `furnished`, docs/invert.md "Session 14").
+    fill_albedo : float
+        See ``unobserved_fill``.
     seed : int
         Seed of the ray sampling and of the solve's vertex subset.
     solve : SolveOptions
@@ -205,9 +215,15 @@ class InvertOptions:
     refine_min_gain: float = 0.02
     refine_height: bool = True
     refine_recess: float = 0.05
+    unobserved_fill: str = "bounce"
+    fill_albedo: float = DEFAULT_FILL_ALBEDO
     seed: int = 0
     solve: SolveOptions = field(default_factory=SolveOptions)
     pictures: bool = True
+
+
+#: The choices of ``InvertOptions.unobserved_fill``.
+UNOBSERVED_FILLS = ("bounce", "mean")
 
 
 @dataclass
@@ -354,6 +370,12 @@ def run_invert(
     from reroom.invert.export import write_outputs
 
     options = options or InvertOptions()
+    if options.unobserved_fill not in UNOBSERVED_FILLS:
+        raise ValueError(
+            f"unobserved_fill must be one of {UNOBSERVED_FILLS}, got {options.unobserved_fill!r}"
+        )
+    if not 0.0 < options.fill_albedo <= 1.0:
+        raise ValueError(f"fill_albedo must be in (0, 1], got {options.fill_albedo}")
     scan = Path(scan_dir)
     out = Path(out_dir) if out_dir is not None else scan / "invert"
     notes: list[str] = []
@@ -421,13 +443,22 @@ def run_invert(
         sub = voxel_receivers(pts, normals, receivers, options.receiver_voxel)
     else:
         sub = receivers
+    seen_radiance, seen = radiance, observed
+    if options.unobserved_fill == "bounce":
+        t_fill = time.perf_counter()
+        seen_radiance, reached = bounce_fill(
+            caster, mesh, radiance, observed, normals, area_of, window_of,
+            excluded=on_light, albedo=options.fill_albedo, seed=options.seed + 7,
+        )  # fmt: skip
+        seen = observed | reached
+        timings["unobserved_fill"] = time.perf_counter() - t_fill
     hemi = hemisphere_transfer(
         caster,
         mesh,
         sub,
         normals,
-        radiance,
-        observed,
+        seen_radiance,
+        seen,
         area_of,
         openings,
         basis,
