@@ -452,6 +452,11 @@ def run_invert(
         )  # fmt: skip
         seen = observed | reached
         timings["unobserved_fill"] = time.perf_counter() - t_fill
+        if reached.any():
+            notes.append(
+                f"{int(reached.sum())} vertices no photo saw lit by one bounce of the observed "
+                f"light (reflectance {options.fill_albedo:g}) for the indirect light"
+            )
     hemi = hemisphere_transfer(
         caster,
         mesh,
@@ -470,7 +475,7 @@ def run_invert(
     )
     if len(sub) != len(receivers):
         hemi = spread_transfer(hemi, pts, normals, receivers)
-    timings["hemisphere_transfer"] = time.perf_counter() - t
+    timings["hemisphere_transfer"] = time.perf_counter() - t - timings.get("unobserved_fill", 0.0)
 
     t = time.perf_counter()
     blocks: list[LightBlock] = []
