@@ -62,7 +62,8 @@ reads ``ground_truth/``, which the estimate never does.
     (albedo errors, and each light's power over the first's on the same rows); and for
     1500 receivers per cluster the hemisphere sums (raw ``E_ind``, observed and unobserved
     fractions) under both masks: how bright the surfaces the HDR mesh misses really are,
-    against the mean that eq. 5.9 gives them.
+    against the mean that eq. 5.9 gives them; last, those surfaces' true radiance against
+    one bounce of the observed light with their true albedo (what ``bounce_fill`` assumes).
 ``--indirect-scale S[,S...]``
     The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
     error in the indirect light moves the albedos and the lights.
@@ -342,6 +343,12 @@ def _truth_problem(scan: Path, work: Path, solve: SolveOptions):
     return res, src, out
 
 
+def _true_cluster_albedo(problem, solution, report: dict) -> np.ndarray:
+    """The true cluster albedos, back from a solution and its evaluation's relative errors."""
+    err = np.array([report["clusters"][c]["relative_error"] for c in problem.cluster_names])
+    return solution.albedo / (1.0 + err)
+
+
 def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> None:
     """How the truth run's model fits at the true parameters, and where it misses."""
     import scipy.sparse as sp
@@ -367,9 +374,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
             true_int[e["name"]], _ = true_window_cells(win, scan / "ground_truth" / "scene", n=n)
         else:  # the solved shape at the true power (the shape error is reported separately)
             true_int[e["name"]] = solved / (1.0 + np.asarray(e["power_relative_error"]))
-    rho_true = sol.albedo / (
-        1.0 + np.array([report["clusters"][c]["relative_error"] for c in prob.cluster_names])
-    )
+    rho_true = _true_cluster_albedo(prob, sol, report)
     w = indirect_weights(prob.radiance, prob.indirect, solve.reweight_c or 10.0)
     scale = float(np.median(prob.radiance))
     delta = solve.huber_delta or np.inf
@@ -568,7 +573,7 @@ def _rows_of(problem, rows: np.ndarray):
 def unobserved(scan: Path, work: Path, solve: SolveOptions, per_cluster: int = 1500) -> None:
     """The true radiance everywhere the truth has it vs only where the HDR mesh is observed."""
     from reroom.hdr.observe import vertex_normals
-    from reroom.invert.pipeline import _fixture_vertices, emitter_surfaces
+    from reroom.invert.pipeline import emitter_classes
     from reroom.invert.transfer import hemisphere_transfer
     from reroom.lights import load_lights
     from reroom.rays import RayCaster
@@ -625,11 +630,12 @@ def unobserved(scan: Path, work: Path, solve: SolveOptions, per_cluster: int = 1
     # their rays count as light, not as observed or unobserved surface).
     mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
     lights = load_lights(scan / "lights" / "lights.json")
-    nv = len(mesh.vertices)
-    areas, _, area_of, window_of = emitter_surfaces(lights.lights, lights.vertex_light_id, nv)
-    fixture = _fixture_vertices(np.asarray(mesh.vertices, float), lights.lights, 0.05)
-    area_of[fixture & (area_of < 0) & (window_of < 0)] = len(areas)
-    on_light = (np.asarray(lights.vertex_light_id) >= 0) | fixture
+    _, _, area_of, window_of, on_light = emitter_classes(
+        lights.lights,
+        lights.vertex_light_id,
+        np.asarray(mesh.vertices, float),
+        InvertOptions(**INVERT_EXTRA).fixture_margin,
+    )
     normals = vertex_normals(mesh)
     caster = RayCaster(mesh)
     rad = np.where(truth_seen[:, None], true_rad, 0.0)
@@ -666,15 +672,32 @@ def unobserved(scan: Path, work: Path, solve: SolveOptions, per_cluster: int = 1
                 f"{h.p_unobserved.mean():.4f} | {extra} |"
             )
 
+    # The vertices only the truth sees, against one bounce of the HDR-observed truth's
+    # light with their own true albedo (what bounce_fill assumes, with a fixed albedo).
+    hidden = np.flatnonzero(
+        truth_seen & ~hdr_observed & ~on_light & (np.linalg.norm(normals, axis=1) > 0)
+    )
+    if len(hidden):
+        h = hemisphere_transfer(
+            caster, mesh, hidden, normals, rad * both[:, None], both, area_of, [], None,
+            rays_per_vertex=256, seed=2, window_of_vertex=window_of,
+        )  # fmt: skip
+        bounce = true_albedo[hidden] / np.pi * h.indirect_rescaled()
+        ratio = true_rad[hidden, 1].sum() / max(bounce[:, 1].sum(), 1e-300)
+        print(
+            f"\n{len(hidden)} vertices only the truth sees: true radiance / (true albedo / pi "
+            f"x E_obs), sum over them (green) {ratio:.3f}; their mean true albedo (green) "
+            f"{true_albedo[hidden, 1].mean():.3f}; mean true radiance {true_rad[hidden, 1].mean():.4f} "
+            f"against {true_rad[both, 1].mean():.4f} over the HDR-observed vertices"
+        )
+
 
 def indirect_scales(scan: Path, work: Path, solve: SolveOptions, scales: list[float]) -> None:
     """The truth run's problem re-solved with E_ind scaled: which way its error moves things."""
     res, src, out = _truth_problem(scan, work, solve)
     prob, sol = res.problem, res.solve
     report = evaluate_invert(src, out)
-    rho_true = sol.albedo / (
-        1.0 + np.array([report["clusters"][c]["relative_error"] for c in prob.cluster_names])
-    )
+    rho_true = _true_cluster_albedo(prob, sol, report)
     true_power = {
         e["name"]: sol.intensities[e["name"]].sum(axis=0)
         / (1.0 + np.asarray(e["power_relative_error"]))

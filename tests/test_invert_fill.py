@@ -105,6 +105,8 @@ def test_bad_fill_options_are_refused(tmp_path) -> None:
         bounce_fill(
             RayCaster(mesh), mesh, rad, ~underside, vertex_normals(mesh), none, none, albedo=0.0
         )
+    with pytest.raises(ValueError, match=r"observed has shape \(3,\)"):
+        bounce_fill(RayCaster(mesh), mesh, rad, np.ones(3, bool), vertex_normals(mesh), none, none)
     with pytest.raises(ValueError, match="unobserved_fill"):
         run_invert(tmp_path, options=InvertOptions(unobserved_fill="harmonic"))
     with pytest.raises(ValueError, match="fill_albedo"):

@@ -76,6 +76,11 @@ def bounce_fill(
         Hemisphere rays per filled vertex; one vertex per ``voxel`` (metres) and normal
         octant is cast from, the others copy its nearest (as the receivers do).
 
+    Raises
+    ------
+    ValueError
+        If ``albedo`` is outside ``(0, 1]`` or an array does not have one row per vertex.
+
     Returns
     -------
     filled : ndarray, shape (V, 3)
@@ -90,6 +95,16 @@ def bounce_fill(
     nrm = np.asarray(normals, dtype=np.float64)
     nv = len(mesh.vertices)
     skip = np.zeros(nv, bool) if excluded is None else np.asarray(excluded, bool)
+    for name, arr, shape in [
+        ("radiance", rad, (nv, 3)),
+        ("observed", obs, (nv,)),
+        ("normals", nrm, (nv, 3)),
+        ("area_of", np.asarray(area_of), (nv,)),
+        ("window_of", np.asarray(window_of), (nv,)),
+        ("excluded", skip, (nv,)),
+    ]:
+        if arr.shape != shape:
+            raise ValueError(f"{name} has shape {arr.shape}; the mesh needs {shape}")
     filled = np.where(obs[:, None], rad, 0.0)
     targets = np.flatnonzero(~obs & ~skip & (np.linalg.norm(nrm, axis=1) > 0))
     reached = np.zeros(nv, dtype=bool)

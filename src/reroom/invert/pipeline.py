@@ -335,6 +335,27 @@ def emitter_surfaces(
     return areas, wins, area_of, window_of
 
 
+def emitter_classes(
+    light_list: list, vertex_light_id: np.ndarray, points: np.ndarray, fixture_margin: float
+) -> tuple[list, list, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`emitter_surfaces` with the glowing fittings of line and point lights folded in.
+
+    The vertices within ``fixture_margin`` of a line or point light are modelled by that
+    light: they must not also count as indirect light, so they join the emitters' class as
+    an extra "area light" (index ``len(areas)``) whose transfer column is dropped.
+
+    Returns ``(areas, windows, area_of, window_of, on_light)``; ``on_light`` marks every
+    vertex of an emitter's surface or a fitting.
+    """
+    nv = len(points)
+    areas, wins, area_of, window_of = emitter_surfaces(light_list, vertex_light_id, nv)
+    fixture = _fixture_vertices(points, light_list, fixture_margin)
+    if fixture.any():
+        area_of[fixture & (area_of < 0) & (window_of < 0)] = len(areas)
+    on_light = (np.asarray(vertex_light_id) >= 0) | fixture
+    return areas, wins, area_of, window_of, on_light
+
+
 def run_invert(
     scan_dir: str | Path,
     out_dir: str | Path | None = None,
@@ -410,7 +431,10 @@ def run_invert(
         if lightset is not None and len(lightset.vertex_light_id)
         else np.full(nv, -1, np.int32)
     )
-    areas, wins, area_of, window_of = emitter_surfaces(light_list, ids, nv)
+    pts = np.asarray(mesh.vertices, dtype=np.float64)
+    areas, wins, area_of, window_of, on_light = emitter_classes(
+        light_list, ids, pts, options.fixture_margin
+    )
     openings = [
         WindowOpening(
             w.name,
@@ -421,14 +445,6 @@ def run_invert(
         )
         for w in wins
     ]
-    # The glowing surfaces of line (and point) light fixtures are modelled by those
-    # lights: their vertices must not also count as indirect light, so they join the
-    # emitters' class as an extra "area light" whose transfer column is dropped.
-    pts = np.asarray(mesh.vertices, dtype=np.float64)
-    fixture = _fixture_vertices(pts, light_list, options.fixture_margin)
-    if fixture.any():
-        area_of[fixture & (area_of < 0) & (window_of < 0)] = len(areas)
-    on_light = (ids >= 0) | fixture
     normals = vertex_normals(mesh)
     has_normal = np.linalg.norm(normals, axis=1) > 0
     receivers = np.flatnonzero(observed & ~on_light & has_normal)
