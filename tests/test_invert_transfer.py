@@ -220,6 +220,16 @@ def test_point_light_over_plane_matches_closed_form_and_shadows():
     assert (f2[shadow & clear] == 0).all()
     np.testing.assert_allclose(f2[~shadow & clear], expected[~shadow & clear], rtol=1e-12)
 
+    # A light a centimetre off the plane: the receivers within `fixture` of it are its fitting.
+    near_light = np.array([0.0, 0.0, 0.01])
+    up = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    free = point_light_transfer(RayCaster(plane), p, up, near_light, [0, 0, 1], basis)
+    fit = point_light_transfer(RayCaster(plane), p, up, near_light, [0, 0, 1], basis, fixture=0.2)
+    inside = np.linalg.norm(p - near_light, axis=1) <= 0.2
+    assert inside.sum() >= 1 and (~inside).sum() > 100
+    assert (fit[inside] == 0).all() and free[inside].sum() > 0
+    np.testing.assert_array_equal(fit[~inside], free[~inside])
+
 
 # -- line lights ------------------------------------------------------------------------------
 

@@ -108,6 +108,7 @@ def point_light_transfer(
     *,
     offset: float | ArrayLike | None = None,
     clearance: float = 0.02,
+    fixture: float = 0.0,
 ) -> np.ndarray:
     """Eq. 5.10: irradiance at each point per unit intensity of each inclination bin.
 
@@ -129,6 +130,12 @@ def point_light_transfer(
     clearance:
         Radius (metres) of a sphere around the light inside which nothing occludes
         (the bulb's own mesh): shadow rays stop this far short of the light.
+    fixture:
+        Metres: points this close to the light are its fitting (a downlight's trim, a
+        bulb's socket), which the point model does not describe; they get no transfer.
+        Without it a receiver a centimetre from the light gets ``1e4`` times the
+        transfer of the room's surfaces, which dominates the solve's scale of the
+        light's smoothness (docs/invert.md, "The solve's subset").
 
     Returns
     -------
@@ -147,6 +154,8 @@ def point_light_transfer(
         value = np.where(cos_r > 0, cos_r / d2, 0.0)
         cos_theta = -(to_light @ ax) / d  # emission direction: light -> receiver
     value[~np.isfinite(value)] = 0.0
+    if fixture > 0:
+        value[d <= fixture] = 0.0
     lit = np.flatnonzero(value > 0)
     value[
         lit[~_unoccluded(caster, starts[lit], np.broadcast_to(pos, (len(lit), 3)), clearance)]

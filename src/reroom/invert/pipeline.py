@@ -108,7 +108,8 @@ class InvertOptions:
         docs/invert.md, "Windows as portals").
     fixture_margin : float
         Metres: vertices this close to a line light (beyond its radius) or to a point
-        light are its glowing fixture, left out of the indirect light.
+        light are its glowing fixture, left out of the indirect light. A point light's
+        transfer is zero within it, also where the refinement moves the light.
     receiver_inset : float
         Compute every transfer at a point moved into the receiver's own surface by up
         to this fraction of its mean edge length (:func:`reroom.invert.transfer.
@@ -550,6 +551,7 @@ def run_invert(
                 np.asarray(g["axis"], float),
                 incl,
                 clearance=options.point_clearance,
+                fixture=options.fixture_margin,
             )
             blocks.append(LightBlock(light.name, "point", incl.size, True, chain))
             info.append(
@@ -875,6 +877,7 @@ def _refine_point_lights(
             np.asarray(g["axis"], float),
             incl,
             clearance=options.point_clearance,
+            fixture=options.fixture_margin,
             max_shift=options.refine_max_shift,
             bounds=(lo, hi),
             free=(0, 1, 2) if options.refine_height else (0, 1),
@@ -897,6 +900,7 @@ def _refine_point_lights(
             np.asarray(g["axis"], float),
             incl,
             clearance=options.point_clearance,
+            fixture=options.fixture_margin,
         )
         info[k]["geometry"] = {**g, "position": ref.position.tolist()}
         info[k]["refined_from"] = list(map(float, g["position"]))

@@ -96,6 +96,7 @@ def refine_point_position(
     basis: InclinationBasis,
     *,
     clearance: float = 0.3,
+    fixture: float = 0.0,
     max_shift: float = 0.3,
     bounds: tuple[np.ndarray, np.ndarray] | None = None,
     smooth: float = 1e-3,
@@ -123,6 +124,9 @@ def refine_point_position(
         The inclination bins of its profile.
     clearance:
         Shadow-ray clearance around the light (``InvertOptions.point_clearance``).
+    fixture:
+        Receivers this close to the trial position are its fitting, not lit by the
+        point model (``InvertOptions.fixture_margin``): the fitting moves with the light.
     max_shift:
         Metres the light may move at most.
     bounds:
@@ -165,7 +169,9 @@ def refine_point_position(
         if shift > max_shift or (lo is not None and (np.any(x < lo) or np.any(x > hi))):
             value = np.inf
         else:
-            f = point_light_transfer(caster, p, n, x, ax, basis, clearance=clearance)
+            f = point_light_transfer(
+                caster, p, n, x, ax, basis, clearance=clearance, fixture=fixture
+            )
             value = _profile_fit(f, t, w, col, smooth)[1]
         seen[key] = value
         return value
