@@ -76,9 +76,11 @@ class InvertOptions:
         Weight of the smoothness between ``phi`` neighbours of a line light, relative to
         that between ``theta`` neighbours (whose weight is ``solve.smooth_lambda``). The
         data hardly separate the ``phi`` bins of one ``theta`` (only the receivers' places
-        along the line do), so they are tied far more strongly: 1e4 (``1e4 x 1e-5 = 0.1`` of
-        a bin's data curvature); 1 to 100 left the ``phi`` split noisy (distribution error
-        65-73 % on `furnished`), 1e4 gave 28 %.
+        along the line do), so they are tied far more strongly: 1e5 (``1e5 x 1e-5 = 1`` of a
+        bin's data curvature); 1 to 100 left the ``phi`` split noisy (distribution error
+        65-73 % on `furnished`), 1e4 gave 28 %. 1e5 (session 15) took the tube 2-5 points
+        closer in power and distribution than 1e4 on both `furnished` scans; 1e6 the same
+        as 1e5 (docs/invert.md).
     line_clearance : float
         Metres around a line light inside which nothing shadows it
         (:func:`reroom.invert.direct.line_light_transfer`'s ``clearance``), as
@@ -194,7 +196,7 @@ class InvertOptions:
     bins: int = 32
     line_phi_bins: int = 3
     line_phi_fold: bool = True
-    line_phi_smooth: float = 1e4
+    line_phi_smooth: float = 1e5
     line_clearance: float = 0.3
     rays_per_receiver: int = 512
     receiver_voxel: float = 0.1
