@@ -994,7 +994,12 @@ def solve_lighting(
         )
     rows, multiplicity = _solve_rows(problem, used, options)
     if len(rows) < int(np.sum(counts[used])):
-        notes.append(f"solved on {len(rows)} of {int(np.sum(counts[used]))} clustered vertices")
+        kept = int(np.sum(multiplicity == 1.0))
+        notes.append(
+            f"solved on {len(rows)} of {int(np.sum(counts[used]))} clustered vertices "
+            f"({kept} that see rarely seen light bins, and a sample of the rest, each "
+            f"counted {float(multiplicity.max()):.2f} times)"
+        )
     data = _Data(problem, rows, options, multiplicity=multiplicity)
     col_norm2 = np.asarray(data.F.multiply(data.F).T @ (data.w * data.m).mean(axis=1)).ravel()
     lay = _layout(problem.lights, col_norm2, options.smooth_lambda)
