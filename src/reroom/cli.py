@@ -435,8 +435,19 @@ def invert(
             "bounce of the observed light) | mean (the thesis's eq. 5.9)."
         ),
     ] = "bounce",
+    settings: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Any other option, NAME=VALUE (repeatable; VALUE as JSON or a bare word): "
+            "a field of InvertOptions or solve.FIELD of SolveOptions, e.g. --set "
+            "line_phi_smooth=1e6 --set solve.huber_delta=0.02. Applied after the flags "
+            "above. An unknown NAME lists the known ones.",
+        ),
+    ] = None,
 ) -> None:
     """Inverse rendering: light intensities and distributions, albedos (thesis ch. 5)."""
+    from reroom.invert.overrides import with_overrides
     from reroom.invert.pipeline import UNOBSERVED_FILLS, InvertOptions, run_invert
     from reroom.invert.solve import SolveOptions
 
@@ -456,6 +467,11 @@ def invert(
             f"got {unobserved_fill!r}"
         )
         raise typer.Exit(2)
+    try:
+        opts = with_overrides(opts, settings or [])
+    except ValueError as exc:
+        console.print(f"[red]error:[/] --set: {exc}")
+        raise typer.Exit(2) from exc
     if texel is not None and not texel > 0:
         console.print(f"[red]error:[/] --texel must be positive, got {texel}")
         raise typer.Exit(2)
