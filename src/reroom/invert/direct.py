@@ -133,7 +133,7 @@ def point_light_transfer(
     fixture:
         Metres: points this close to the light are its fitting (a downlight's trim, a
         bulb's socket), which the point model does not describe; they get no transfer.
-        Without it a receiver a centimetre from the light gets ``1e4`` times the
+        Without it a receiver a centimetre from the light gets 1e3-1e4 times the
         transfer of the room's surfaces, which dominates the solve's scale of the
         light's smoothness (docs/invert.md, "The solve's subset").
 
