@@ -234,6 +234,22 @@ def error_breakdown(ours: np.ndarray, tru: np.ndarray, near_edge: np.ndarray, la
     return out
 
 
+def light_share(off: np.ndarray, ref: np.ndarray, label: np.ndarray) -> dict[str, float | None]:
+    """Share of a view's light (Rec. 709 luminance) that switching a light off removes.
+
+    ``1 - sum(off) / sum(ref)`` over the whole view and over each surface (layout label;
+    ``other``: furniture and everything else): what the light carries there, indirect
+    light included.
+    """
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    a, b = off @ lum, ref @ lum
+    out: dict[str, float | None] = {"all": float(1 - a.sum() / max(b.sum(), 1e-300))}
+    for k, name in {**SURFACES, 255: "other"}.items():
+        on = label == k
+        out[name] = float(1 - a[on].sum() / b[on].sum()) if on.sum() >= 50 else None
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -371,6 +387,7 @@ def main() -> None:
         "edit_sets": {e: EDIT_SETS[e] for e in chosen},
         "results": results,
     }
+    seen: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}  # images by (edit, view)
     for edit in chosen:
         ops = EDIT_SETS[edit]
         t0 = time.perf_counter()
@@ -460,6 +477,15 @@ def main() -> None:
                 row["rel_rmse_noise_corrected"] = float(
                     np.sqrt(max(row["rel_rmse"] ** 2 - var, 0.0))
                 )
+            seen[(edit, v["view"])] = (ours, tru)
+            if any(op.get("op") == "light" and op.get("off") for op in ops):
+                # The switched-off light's share of the view, truth against ours: where
+                # the relighting error comes from (its power, or the other lights').
+                if ("reference", v["view"]) in seen:
+                    o_ref, t_ref = seen[("reference", v["view"])]
+                    label = maps[v["view"]][1]
+                    row["light_share_truth"] = light_share(tru, t_ref, label)
+                    row["light_share_ours"] = light_share(ours, o_ref, label)
             rows.append(row)
             write_rgb8(strips / f"{edit}_{v['view']}.png", comparison_strip(ours, tru))
         for group in ("input", "new"):
@@ -507,6 +533,20 @@ def main() -> None:
                                for n in ("wall", "floor", "ceiling", "other")) + " | "
                   + " / ".join(_f3(q.get(f"{n}_ratio_of_means_off_edges"))
                                for n in ("wall", "floor", "ceiling")) + " |")  # fmt: skip
+    shares = [(r["edit"], q) for r in results for q in r["per_view"] if "light_share_truth" in q]
+    if shares:
+        print("\nThe switched-off light's share of each view's light (1 - off / unedited, Rec. 709")
+        print("luminance), truth / ours:\n")
+        print(
+            "| edit | view | all | wall | floor | ceiling | other |\n|---|---|---|---|---|---|---|"
+        )
+        for edit, q in shares:
+            t, o = q["light_share_truth"], q["light_share_ours"]
+            cells = [
+                "-" if t[n] is None or o[n] is None else f"{t[n]:.3f} / {o[n]:.3f}"
+                for n in ("all", "wall", "floor", "ceiling", "other")
+            ]
+            print(f"| {edit} | {q['view']} | " + " | ".join(cells) + " |")
 
 
 #: Markdown table of :func:`_row`.

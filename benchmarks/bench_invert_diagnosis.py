@@ -64,6 +64,13 @@ reads ``ground_truth/``, which the estimate never does.
     fractions) under both masks: how bright the surfaces the HDR mesh misses really are,
     against the mean that eq. 5.9 gives them; last, those surfaces' true radiance against
     one bounce of the observed light with their true albedo (what ``bounce_fill`` assumes).
+``--resolve-variants``
+    ``reroom invert`` once, then its eq. 5.7 problem re-solved: the counted subset with
+    other seeds, every clustered vertex, the subset as solved before session 15 (each
+    row counted once; also with ``smooth_lambda`` over the multiplicity), the counted
+    subset without its rare rows, and the line's theta or phi smoothness pairs or the
+    window's scaled x10 / x100. Errors per cluster and light, scaled from the run's own
+    evaluation by each variant's albedo and power ratios.
 ``--indirect-scale S[,S...]``
     The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
     error in the indirect light moves the albedos and the lights.
@@ -856,6 +863,112 @@ def light_swaps(scan: Path, work: Path) -> None:
         print(_row(label, evaluate_invert(src, work / name)), flush=True)
 
 
+def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
+    """The run's eq. 5.7 problem re-solved with the subset and the smoothness varied.
+
+    ``reroom invert`` once (HDR radiance, the scan's lights), then its problem solved
+    again: the counted subset with seeds 0-3; the subset as solved before session 15
+    (every row counted once), also with ``smooth_lambda`` divided by the sampled rows'
+    multiplicity; every clustered vertex; the counted subset without the rows kept as
+    rare; and the line and window lights' smoothness pairs scaled (theta or phi pairs of
+    the line, all pairs of the window). Errors are the run's own ``evaluate_invert``
+    figures times each variant's ratio to the run: albedo ratio per cluster, power ratio
+    per light (the powers ``scene.json`` would get, fills of poorly seen bins included).
+    """
+    import reroom.invert.solve as solve_mod
+    from reroom.invert.export import light_entries
+
+    out = work / "variants"
+    res = _invert(scan, out, None, solve)
+    report = evaluate_invert(scan, out)
+    prob, base = res.problem, res.solve
+    opts = InvertOptions(pictures=False, solve=solve, **INVERT_EXTRA)
+
+    def powers(sol) -> dict[str, np.ndarray]:
+        ents = light_entries(dataclasses.replace(res, solve=sol), None, opts.min_bin_support)
+        return {e["name"]: np.asarray(e["power"], float) for e in ents}
+
+    base_err = {c: np.asarray(v["relative_error"]) for c, v in report["clusters"].items()}
+    base_pow = powers(base)
+    light_err = {
+        e["name"]: np.asarray(e.get("effective_power_relative_error") or e["power_relative_error"])
+        for e in report["lights"]
+        if e.get("power_relative_error") is not None
+    }
+    names = [c for c in CLUSTERS if c in prob.cluster_names]
+    lights = [b.name for b in prob.lights if b.name in light_err]
+    print(
+        "| solve | objective | "
+        + " | ".join(names + lights)
+        + " |\n|"
+        + "---|" * (2 + len(names) + len(lights))
+    )
+
+    def pct(v) -> str:
+        return "/".join(f"{100 * x:+.1f}" for x in np.atleast_1d(v)) + " %"
+
+    def row(label: str, sol) -> None:
+        cells = []
+        for c in names:
+            k = prob.cluster_names.index(c)
+            cells.append(pct((1 + base_err[c]) * sol.albedo[k] / base.albedo[k] - 1))
+        p = powers(sol)
+        for n in lights:
+            cells.append(pct((1 + light_err[n]) * p[n] / base_pow[n] - 1))
+        print(f"| {label} | {sol.objective:.1f} | " + " | ".join(cells) + " |", flush=True)
+
+    row("the run", base)
+    for seed in (1, 2, 3):
+        row(f"counted, seed {seed}", solve_lighting(prob, dataclasses.replace(solve, seed=seed)))
+    row(
+        "every clustered vertex",
+        solve_lighting(prob, dataclasses.replace(solve, max_vertices=None)),
+    )
+    rows_of = solve_mod._solve_rows
+    try:
+        # The subset as solved before session 15: each row counted once.
+        def uncounted(*a):
+            r, _ = rows_of(*a)
+            return r, np.ones(len(r))
+
+        solve_mod._solve_rows = uncounted
+        for seed in (0, 1, 2, 3):
+            row(
+                f"uncounted, seed {seed}",
+                solve_lighting(prob, dataclasses.replace(solve, seed=seed)),
+            )
+        mult = float(rows_of(prob, np.ones(len(prob.cluster_names), bool), solve)[1].max())
+        smooth = dataclasses.replace(solve, smooth_lambda=solve.smooth_lambda / mult)
+        row(f"uncounted, smooth_lambda / {mult:.2f}", solve_lighting(prob, smooth))
+
+        def without_rare(*a):
+            r, m = rows_of(*a)
+            return r[m > 1], m[m > 1]
+
+        solve_mod._solve_rows = without_rare
+        row("counted, rare rows left out", solve_lighting(prob, solve))
+    finally:
+        solve_mod._solve_rows = rows_of
+    for kind, which in (("line", "theta"), ("line", "phi"), ("window", "all")):
+        for factor in (10.0, 100.0):
+            blocks = []
+            for b in prob.lights:
+                if b.kind == kind and b.adjacency is not None:
+                    w = (
+                        np.ones(len(b.adjacency))
+                        if b.adjacency_weights is None
+                        else np.asarray(b.adjacency_weights, float)
+                    )
+                    # LineBasis.adjacency: theta pairs weigh 1, phi pairs line_phi_smooth
+                    pick = {"theta": w == 1.0, "phi": w != 1.0, "all": np.ones(len(w), bool)}
+                    b = dataclasses.replace(
+                        b, adjacency_weights=np.where(pick[which], w * factor, w)
+                    )
+                blocks.append(b)
+            sol = solve_lighting(dataclasses.replace(prob, lights=blocks), solve)
+            row(f"{kind} smoothness ({which} pairs) x{factor:g}", sol)
+
+
 def render_consistency(scan: Path, work: Path, clearance: bool = True, n: int = 4000) -> None:
     """Each solved light rendered alone vs the solve's own transfer, at clustered receivers.
 
@@ -960,6 +1073,11 @@ def main() -> None:
     ap.add_argument(
         "--indirect-scale", default="", help="comma-separated E_ind scales for the truth run"
     )
+    ap.add_argument(
+        "--resolve-variants",
+        action="store_true",
+        help="the run's problem re-solved with the subset and the smoothness varied",
+    )
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
@@ -984,6 +1102,8 @@ def main() -> None:
         interpolation(args.scan)
     if args.light_swaps:
         light_swaps(args.scan, args.work)
+    if args.resolve_variants:
+        resolve_variants(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.render_consistency:
         render_consistency(args.scan, args.work, clearance=False)
         render_consistency(args.scan, args.work, clearance=True)
