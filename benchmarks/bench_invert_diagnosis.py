@@ -105,8 +105,12 @@ from reroom.io.mesh import read_ply, write_ply
 CLUSTERS = {"wall": 0, "floor": 1, "ceiling": 2}
 
 
+#: Decimals of the percentages printed (``--decimals``).
+DECIMALS = [0]
+
+
 def _pct(v) -> str:
-    return "/".join(f"{100 * x:+.0f}" for x in np.atleast_1d(v)) + " %"
+    return "/".join(f"{100 * x:+.{DECIMALS[0]}f}" for x in np.atleast_1d(v)) + " %"
 
 
 def linked_scan(src: Path, dst: Path, replace: dict[str, Path]) -> Path:
@@ -904,17 +908,14 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
         + "---|" * (2 + len(names) + len(lights))
     )
 
-    def pct(v) -> str:
-        return "/".join(f"{100 * x:+.1f}" for x in np.atleast_1d(v)) + " %"
-
     def row(label: str, sol) -> None:
         cells = []
         for c in names:
             k = prob.cluster_names.index(c)
-            cells.append(pct((1 + base_err[c]) * sol.albedo[k] / base.albedo[k] - 1))
+            cells.append(_pct((1 + base_err[c]) * sol.albedo[k] / base.albedo[k] - 1))
         p = powers(sol)
         for n in lights:
-            cells.append(pct((1 + light_err[n]) * p[n] / base_pow[n] - 1))
+            cells.append(_pct((1 + light_err[n]) * p[n] / base_pow[n] - 1))
         print(f"| {label} | {sol.objective:.1f} | " + " | ".join(cells) + " |", flush=True)
 
     row("the run", base)
@@ -1078,9 +1079,11 @@ def main() -> None:
         action="store_true",
         help="the run's problem re-solved with the subset and the smoothness varied",
     )
+    ap.add_argument("--decimals", type=int, default=0, help="decimals of the printed %%")
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
+    DECIMALS[0] = args.decimals
     args.work.mkdir(parents=True, exist_ok=True)
     INVERT_EXTRA.update(json.loads(args.invert))
     if args.reprobe:

@@ -914,7 +914,7 @@ def _solve_rows(
     the smoothness scale (the mean data curvature of a light's elements, dominated by the
     few kept receivers next to a point light) was not: on the 300-frame `furnished` scan
     (20000 of 135k vertices, 39 kept as rare) the smoothness was 6.8x too strong, the floor
-    albedo came out +7 % instead of +2 % (green) and the downlight -24 % instead of -11 %
+    albedo came out +11 % instead of +4 % (green) and the downlight -31 % instead of -15 %
     against solving on every vertex (docs/invert.md, "The solve's subset").
     """
     rows = np.flatnonzero(used[problem.cluster])
