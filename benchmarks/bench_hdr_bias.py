@@ -1,0 +1,281 @@
+"""Where the HDR mesh's radiance departs from the true vertex radiance, and in which channel.
+
+Usage::
+
+    python benchmarks/bench_hdr_bias.py SCAN [--truth PLY] [--bin-by PLY]
+        [--scales true|solved] [--sampling box3,nearest]
+
+``SCAN`` is a synthetic scan with ``ground_truth/`` and ``hdr/``. Its frames are
+reprojected again here (``collect_observations`` and ``reproject_radiance`` with the
+pipeline's defaults, or the ``--sampling`` named), with the frames' *true* scales
+(``--scales true``, the default: the reprojection alone) or the ones ``reroom hdr``
+solved (``solved``: divided by their per-channel median ratio to the true ones, so
+only the frame-to-frame errors stay). Every figure is a ratio of sums, HDR over truth,
+per channel, over the vertices of a band of true luminance; emitters (true label
+``light``, the window's portal) are left out.
+
+* ``--truth`` is the radiance to compare with (default ``ground_truth/vertices.ply``);
+  ``--bin-by`` the radiance that picks the bands. Binning by the same noisy sample that
+  is compared with makes the bands regress to the mean (a vertex lands in the top band
+  partly because its sample came out high), so pass an independent truth sample of
+  the same mesh (e.g. ``reroom synth`` re-run with another seed) to ``--bin-by``.
+* Tables: (1) per band, with the share of clean samples clipped (level 255) per
+  channel; (2) bands of the vertices that have clean samples against those seen only
+  near image or depth edges (flagged samples), with the truth parts of the latter;
+  (3) per surface (true label); (4) within 1.5 m of each point light against the rest;
+  (5) for vertices with no clipped sample, the mean of their samples against their
+  median (Monte-Carlo noise of the path-traced frames is skewed, a sensor's is not);
+  (6) with ``--render-frames``, those frames path-traced again at ``--render-spp`` by
+  the generator's renderer (linear, no camera): the 8-bit frames over the render
+  (unclipped pixels, by band of the render: what the camera simulation and the frames'
+  own Monte-Carlo noise do), and the render's pixel at each vertex the frame sees
+  (a clean sample) over the vertex truth, per surface: whether the truth's probes
+  (a ray from 3 cm along the normal, ``reroom.render.frames.probe_radiance``) see the
+  surface as a camera does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from reroom.hdr.linearize import response_lut
+from reroom.hdr.observe import (
+    EDGE_FLAGS,
+    ObserveOptions,
+    collect_observations,
+    decode_linear,
+    vertex_normals,
+)
+from reroom.hdr.reproject import VertexGroups, reproject_radiance
+from reroom.io.mesh import read_ply
+from reroom.rays import RayCaster
+from reroom.scan import load_scan
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+BANDS = [0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.8, np.inf]
+LABELS = {0: "wall", 1: "floor", 2: "ceiling", 3: "door", 4: "window", 5: "baseboard"}
+
+
+def _ratio(est: np.ndarray, tru: np.ndarray, sel: np.ndarray) -> str:
+    t = tru[sel].sum(0)
+    r = est[sel].sum(0) / np.where(t > 0, t, np.nan)
+    return " / ".join(f"{x:.3f}" for x in r)
+
+
+def _band_rows(est, tru, key, sel, extra=None) -> list[str]:
+    rows = []
+    for a, b in zip(BANDS[:-1], BANDS[1:], strict=True):
+        s = sel & (key >= a) & (key < b)
+        if s.sum() < 3:
+            continue
+        cells = [f"{a:g}-{b:g}", str(int(s.sum())), _ratio(est, tru, s)]
+        if extra is not None:
+            cells.append(extra(s))
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("scan", type=Path)
+    ap.add_argument("--truth", type=Path, help="true vertex radiance PLY to compare with")
+    ap.add_argument("--bin-by", type=Path, help="independent true radiance PLY for the bands")
+    ap.add_argument("--scales", choices=("true", "solved"), default="true")
+    ap.add_argument("--sampling", default="box3", help="comma-separated ObserveOptions.sampling")
+    ap.add_argument("--render-frames", default="", help="comma-separated frame indices for (6)")
+    ap.add_argument("--render-spp", type=int, default=256)
+    args = ap.parse_args()
+
+    scan_dir = args.scan
+    gt_dir = scan_dir / "ground_truth"
+    verts = read_ply(gt_dir / "vertices.ply")
+    tru = np.asarray(read_ply(args.truth or gt_dir / "vertices.ply").vertex_attributes["radiance"])
+    tru = tru.astype(float)
+    key = (
+        tru
+        if args.bin_by is None
+        else np.asarray(read_ply(args.bin_by).vertex_attributes["radiance"])
+    )
+    key = np.asarray(key, float) @ LUMA
+    label = np.asarray(verts.vertex_attributes["label"])
+    part = np.asarray(verts.vertex_attributes["part"])
+    gt = json.loads((gt_dir / "ground_truth.json").read_text())
+    scene = json.loads((gt_dir / "scene" / "scene.json").read_text())
+    part_names = [p.get("name", str(i)) for i, p in enumerate(scene["parts"])]
+    emitter_parts = [i for i, n in enumerate(part_names) if n.endswith("_portal")]
+    keep = (label != 7) & ~np.isin(part, emitter_parts)
+    t_true = np.array([f["scale"] for f in gt["frames"]], float)
+    if args.scales == "true":
+        scales = t_true
+    else:
+        s = np.load(scan_dir / "hdr" / "hdr_extras.npz")["scales"]
+        scales = s / np.nanmedian(s / t_true, axis=0)
+    print(
+        f"`{scan_dir}`: {len(tru)} vertices ({int(keep.sum())} not emitters), "
+        f"{len(t_true)} frames, scales: {args.scales}; bands by "
+        f"{args.bin_by or 'the compared truth itself (regresses to the mean)'}"
+    )
+
+    scan = load_scan(scan_dir)
+    lut = response_lut("auto", scan.meta)
+    caster = RayCaster(scan.mesh)
+    normals = vertex_normals(scan.mesh)
+    lights = [x for x in gt["lights"] if x["type"] == "point"]
+    pos = np.asarray(verts.vertices, float)
+    for sampling in args.sampling.split(","):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            obs = collect_observations(
+                scan.frames,
+                scan.mesh,
+                lut,
+                ObserveOptions(sampling=sampling),
+                caster,
+                normals=normals,
+            )
+        rad = reproject_radiance(obs, scales, VertexGroups(obs), level_linear=lut)
+        est = rad.radiance
+        base = keep & rad.observed
+        clean = (obs.flags & EDGE_FLAGS) == 0
+        n_clean = np.bincount(obs.vertex[clean], minlength=obs.n_vertices)
+        v_clean = obs.vertex[clean]
+        clipped = obs.value[clean] == 255
+
+        def clip_share(s: np.ndarray, v_clean=v_clean, clipped=clipped) -> str:
+            m = s[v_clean]
+            return " / ".join(f"{x:.2f}" for x in clipped[m].mean(0)) if m.any() else "-"
+
+        print(f"\n### sampling `{sampling}`\n")
+        print("(1) per band of true luminance: HDR / truth (r / g / b), clipped clean samples\n")
+        print("| band | vertices | HDR / truth | clipped samples |\n|---|---|---|---|")
+        print("\n".join(_band_rows(est, tru, key, base, clip_share)))
+
+        print("\n(2) vertices with clean samples, and those seen only near edges\n")
+        print("| band | vertices | HDR / truth | which |\n|---|---|---|---|")
+        for name, s in (
+            ("clean samples", base & (n_clean > 0)),
+            ("only near edges", base & (n_clean == 0)),
+        ):
+            for row in _band_rows(est, tru, key, s & (key >= 0.1)):
+                print(row[:-2] + f" | {name} |")
+        only = base & (n_clean == 0) & (key >= 0.1)
+        names, counts = np.unique(part[only], return_counts=True)
+        top = sorted(zip(counts, names, strict=True), reverse=True)[:4]
+        print(
+            "\nparts of the edge-only vertices above 0.1: "
+            + ", ".join(f"{part_names[p]} {c}" for c, p in top)
+        )
+
+        print("\n(3) per surface (true label), every band\n")
+        print("| surface | vertices | HDR / truth |\n|---|---|---|")
+        for k, name in LABELS.items():
+            s = base & (label == k)
+            if s.sum() >= 3:
+                print(f"| {name} | {int(s.sum())} | {_ratio(est, tru, s)} |")
+
+        if lights:
+            print("\n(4) within 1.5 m of each point light, and the rest\n")
+            print("| band | vertices | HDR / truth | where |\n|---|---|---|---|")
+            near_any = np.zeros(len(pos), bool)
+            for light in lights:
+                near = np.linalg.norm(pos - np.asarray(light["position"]), axis=1) < 1.5
+                near_any |= near
+                for row in _band_rows(est, tru, key, base & near & (n_clean > 0)):
+                    print(row[:-2] + f" | near {light['name']} |")
+            for row in _band_rows(est, tru, key, base & ~near_any & (n_clean > 0)):
+                print(row[:-2] + " | elsewhere |")
+
+        # (5) the median's bias under skewed noise: unclipped vertices, mean vs median.
+        x = decode_linear(obs.linear[clean]) / scales[obs.frame[clean]]
+        any_clip = np.bincount(v_clean[clipped.any(1)], minlength=obs.n_vertices) > 0
+        order = np.argsort(v_clean, kind="stable")
+        vs, xs = v_clean[order], x[order]
+        bounds = np.searchsorted(vs, np.arange(obs.n_vertices + 1))
+        cnt = np.diff(bounds)
+        mean = (
+            np.stack([np.bincount(vs, xs[:, c], minlength=obs.n_vertices) for c in range(3)], 1)
+            / np.maximum(cnt, 1)[:, None]
+        )
+        med = np.zeros_like(mean)
+        for i in np.flatnonzero(cnt >= 3):
+            med[i] = np.median(xs[bounds[i] : bounds[i + 1]], axis=0)
+        s5 = base & ~any_clip & (cnt >= 3)
+        print(
+            "\n(5) vertices with 3+ clean samples and none clipped: plain mean and median of the samples\n"
+        )
+        print("| band | vertices | mean / truth | median / truth |\n|---|---|---|---|")
+        for a, b in zip(BANDS[:-1], BANDS[1:], strict=True):
+            s = s5 & (key >= a) & (key < b)
+            if s.sum() >= 3:
+                print(
+                    f"| {a:g}-{b:g} | {int(s.sum())} | {_ratio(mean, tru, s)} | {_ratio(med, tru, s)} |"
+                )
+
+    if args.render_frames:
+        render_check(scan, scan_dir, obs, lut, t_true, tru, est, label, args)
+
+
+def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) -> None:
+    """Table (6): the frames against a high-spp render, and the render against the probes."""
+    import imageio.v3 as iio
+
+    from reroom.synth.edits import render_scene
+
+    views = [int(x) for x in args.render_frames.split(",")]
+    renders = render_scene(
+        scan_dir / "ground_truth" / "scene",
+        [(scan.frames[j].c2w, scan.frames[j].intrinsics) for j in views],
+        args.render_spp,
+        seed=7,
+    )
+    print(f"\n(6) frames {views} path-traced again at {args.render_spp} spp\n")
+    print("| frame | band of the render | pixels | frame / render |\n|---|---|---|---|")
+    clean = (obs.flags & EDGE_FLAGS) == 0
+    pix_sum: dict[int, np.ndarray] = {}
+    tru_sum: dict[int, np.ndarray] = {}
+    est_sum: dict[int, np.ndarray] = {}
+    for j, render in zip(views, renders, strict=True):
+        frame = scan.frames[j]
+        img = iio.imread(frame.image_path)[..., :3]
+        x = lut[img] / t_true[j]
+        unclipped = (img < 250).all(-1) & (img > 5).all(-1)
+        lum = render @ LUMA
+        for a, b in zip(BANDS[1:-2], BANDS[2:-1], strict=True):
+            s = unclipped & (lum >= a) & (lum < b)
+            if s.sum() >= 20:
+                r = x[s].sum(0) / render[s].sum(0)
+                print(
+                    f"| {j} | {a:g}-{b:g} | {int(s.sum())} | "
+                    + " / ".join(f"{v:.3f}" for v in r)
+                    + " |"
+                )
+        seen = obs.vertex[clean & (obs.frame == j)]
+        uv, _, inside = frame.project(np.asarray(scan.mesh.vertices)[seen])
+        seen, uv = seen[inside], uv[inside]
+        h, w = render.shape[:2]
+        px = render[
+            np.clip(uv[:, 1].astype(int), 0, h - 1), np.clip(uv[:, 0].astype(int), 0, w - 1)
+        ]
+        for k in LABELS:
+            s = label[seen] == k
+            pix_sum[k] = pix_sum.get(k, 0) + px[s].sum(0)
+            tru_sum[k] = tru_sum.get(k, 0) + tru[seen][s].sum(0)
+            est_sum[k] = est_sum.get(k, 0) + est[seen][s].sum(0)
+    print(
+        "\nOver the vertices these frames see in a clean sample:\n\n"
+        "| surface | render pixel / vertex truth | HDR / vertex truth |\n|---|---|---|"
+    )
+    for k, name in LABELS.items():
+        if np.all(tru_sum.get(k, 0) > 0):
+            a = " / ".join(f"{v:.3f}" for v in pix_sum[k] / tru_sum[k])
+            b = " / ".join(f"{v:.3f}" for v in est_sum[k] / tru_sum[k])
+            print(f"| {name} | {a} | {b} |")
+
+
+if __name__ == "__main__":
+    main()
