@@ -224,6 +224,7 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
     """Table (6): the frames against a high-spp render, and the render against the probes."""
     import imageio.v3 as iio
 
+    from reroom.render.camera import subpixel_positions
     from reroom.synth.edits import render_scene
 
     views = [int(x) for x in args.render_frames.split(",")]
@@ -239,11 +240,23 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
     pix_sum: dict[int, np.ndarray] = {}
     tru_sum: dict[int, np.ndarray] = {}
     est_sum: dict[int, np.ndarray] = {}
+    frame_sum: dict[int, np.ndarray] = {}
+    render_sum: dict[int, np.ndarray] = {}
+    caster = RayCaster(scan.mesh)
+    faces = np.asarray(scan.mesh.faces)
     for j, render in zip(views, renders, strict=True):
         frame = scan.frames[j]
         img = iio.imread(frame.image_path)[..., :3]
         x = lut[img] / t_true[j]
         unclipped = (img < 250).all(-1) & (img > 5).all(-1)
+        h, w = render.shape[:2]
+        hits = caster.intersect(*frame.pixel_rays(subpixel_positions(0, w, 0, h, 1)))
+        seen_label = np.where(hits.hit, label[faces[np.maximum(hits.face, 0), 0]], 255)
+        seen_label = seen_label.reshape(h, w)
+        for k in LABELS:
+            s = unclipped & (seen_label == k)
+            frame_sum[k] = frame_sum.get(k, 0) + x[s].sum(0)
+            render_sum[k] = render_sum.get(k, 0) + render[s].sum(0)
         lum = render @ LUMA
         for a, b in zip(BANDS[1:-2], BANDS[2:-1], strict=True):
             s = unclipped & (lum >= a) & (lum < b)
@@ -257,7 +270,6 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
         seen = obs.vertex[clean & (obs.frame == j)]
         uv, _, inside = frame.project(np.asarray(scan.mesh.vertices)[seen])
         seen, uv = seen[inside], uv[inside]
-        h, w = render.shape[:2]
         px = render[
             np.clip(uv[:, 1].astype(int), 0, h - 1), np.clip(uv[:, 0].astype(int), 0, w - 1)
         ]
@@ -268,13 +280,15 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
             est_sum[k] = est_sum.get(k, 0) + est[seen][s].sum(0)
     print(
         "\nOver the vertices these frames see in a clean sample:\n\n"
-        "| surface | render pixel / vertex truth | HDR / vertex truth |\n|---|---|---|"
+        "| surface | frame / render (unclipped pixels) | render pixel / vertex truth "
+        "| HDR / vertex truth |\n|---|---|---|---|"
     )
     for k, name in LABELS.items():
-        if np.all(tru_sum.get(k, 0) > 0):
+        if np.all(tru_sum.get(k, 0) > 0) and np.all(render_sum.get(k, 0) > 0):
+            f = " / ".join(f"{v:.3f}" for v in frame_sum[k] / render_sum[k])
             a = " / ".join(f"{v:.3f}" for v in pix_sum[k] / tru_sum[k])
             b = " / ".join(f"{v:.3f}" for v in est_sum[k] / tru_sum[k])
-            print(f"| {name} | {a} | {b} |")
+            print(f"| {name} | {f} | {a} | {b} |")
 
 
 if __name__ == "__main__":

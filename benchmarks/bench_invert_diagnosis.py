@@ -69,7 +69,7 @@ reads ``ground_truth/``, which the estimate never does.
     other seeds, every clustered vertex, the subset as solved before session 15 (each
     row counted once; also with ``smooth_lambda`` over the multiplicity), the counted
     subset without its rare rows, and the line's theta or phi smoothness pairs or the
-    window's scaled x10 / x100. Errors per cluster and light, scaled from the run's own
+    window's scaled x10 / x100, the point lights' x0.1 / x0.01. Errors per cluster and light, scaled from the run's own
     evaluation by each variant's albedo and power ratios.
 ``--indirect-scale S[,S...]``
     The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
@@ -946,12 +946,15 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
             r, m = rows_of(*a)
             return r[m > 1], m[m > 1]
 
-        solve_mod._solve_rows = without_rare
-        row("counted, rare rows left out", solve_lighting(prob, solve))
+        if mult > 1:
+            solve_mod._solve_rows = without_rare
+            row("counted, rare rows left out", solve_lighting(prob, solve))
+        else:
+            print("| (not subsampled: every row counts once, so no rare rows to leave out) |")
     finally:
         solve_mod._solve_rows = rows_of
-    for kind, which in (("line", "theta"), ("line", "phi"), ("window", "all")):
-        for factor in (10.0, 100.0):
+    for kind, which in (("line", "theta"), ("line", "phi"), ("window", "all"), ("point", "all")):
+        for factor in (0.1, 0.01) if kind == "point" else (10.0, 100.0):
             blocks = []
             for b in prob.lights:
                 if b.kind == kind and b.adjacency is not None:
