@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/bench_hdr_bias.py SCAN [--truth PLY] [--bin-by PLY]
         [--scales true|solved] [--sampling box3,nearest]
+        [--render-frames 5,15 [--render-spp 256] [--clip-spp 16,64,256]]
 
 ``SCAN`` is a synthetic scan with ``ground_truth/`` and ``hdr/``. Its frames are
 reprojected again here (``collect_observations`` and ``reproject_radiance`` with the
@@ -27,11 +28,18 @@ per channel, over the vertices of a band of true luminance; emitters (true label
   median (Monte-Carlo noise of the path-traced frames is skewed, a sensor's is not);
   (6) with ``--render-frames``, those frames path-traced again at ``--render-spp`` by
   the generator's renderer (linear, no camera): the 8-bit frames over the render
-  (unclipped pixels, by band of the render: what the camera simulation and the frames'
-  own Monte-Carlo noise do), and the render's pixel at each vertex the frame sees
-  (a clean sample) over the vertex truth, per surface: whether the truth's probes
-  (a ray from 3 cm along the normal, ``reroom.render.frames.probe_radiance``) see the
-  surface as a camera does.
+  (unclipped pixels, by band of the render; and per surface, over the pixels the render
+  expects under half the white level: what the camera simulation and the frames'
+  own Monte-Carlo noise do; and a render at the frames' own sample count clipped at
+  the white level against the same unclipped: the light a camera loses where the path
+  tracer's noise pushes single pixels past white), and the render's pixel at each
+  vertex the frame sees (a clean sample) over the vertex truth, per surface: whether
+  the truth's probes (a ray from 3 cm along the normal,
+  ``reroom.render.frames.probe_radiance``) see the surface as a camera does;
+  (7) with ``--clip-spp 16,64``, renders of those views at each sample count clipped at
+  the white level against the same unclipped, on the pixels the reference render
+  expects under half white: the light the generator's camera loses to the path
+  tracer's noise at that sample count (``reroom synth --spp``).
 """
 
 from __future__ import annotations
@@ -89,6 +97,11 @@ def main() -> None:
     ap.add_argument("--sampling", default="box3", help="comma-separated ObserveOptions.sampling")
     ap.add_argument("--render-frames", default="", help="comma-separated frame indices for (6)")
     ap.add_argument("--render-spp", type=int, default=256)
+    ap.add_argument(
+        "--clip-spp",
+        default="",
+        help="comma-separated sample counts for (7): renders clipped at white against unclipped",
+    )
     args = ap.parse_args()
 
     scan_dir = args.scan
@@ -218,6 +231,8 @@ def main() -> None:
 
     if args.render_frames:
         render_check(scan, scan_dir, obs, lut, t_true, tru, est, label, args)
+    if args.render_frames and args.clip_spp:
+        clip_check(scan, scan_dir, t_true, args)
 
 
 def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) -> None:
@@ -234,6 +249,17 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
         args.render_spp,
         seed=7,
     )
+    # The same views at the frames' own sample count, another seed: how much of the light
+    # a camera loses when the path tracer's noise pushes single pixels past white.
+    frame_spp = int(
+        json.loads((scan_dir / "ground_truth" / "ground_truth.json").read_text())["options"]["spp"]
+    )
+    noisy = render_scene(
+        scan_dir / "ground_truth" / "scene",
+        [(scan.frames[j].c2w, scan.frames[j].intrinsics) for j in views],
+        frame_spp,
+        seed=8,
+    )
     print(f"\n(6) frames {views} path-traced again at {args.render_spp} spp\n")
     print("| frame | band of the render | pixels | frame / render |\n|---|---|---|---|")
     clean = (obs.flags & EDGE_FLAGS) == 0
@@ -242,21 +268,29 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
     est_sum: dict[int, np.ndarray] = {}
     frame_sum: dict[int, np.ndarray] = {}
     render_sum: dict[int, np.ndarray] = {}
+    noisy_sum: dict[int, np.ndarray] = {}
+    clipped_sum: dict[int, np.ndarray] = {}
     caster = RayCaster(scan.mesh)
     faces = np.asarray(scan.mesh.faces)
-    for j, render in zip(views, renders, strict=True):
+    for j, render, raw in zip(views, renders, noisy, strict=True):
         frame = scan.frames[j]
         img = iio.imread(frame.image_path)[..., :3]
         x = lut[img] / t_true[j]
         unclipped = (img < 250).all(-1) & (img > 5).all(-1)
+        # Picked by the render, not by the frame (which would keep the pixels its noise
+        # pulled down): every channel expected well under the white level.
+        below_white = (render * t_true[j]).max(-1) < 0.5
         h, w = render.shape[:2]
         hits = caster.intersect(*frame.pixel_rays(subpixel_positions(0, w, 0, h, 1)))
         seen_label = np.where(hits.hit, label[faces[np.maximum(hits.face, 0), 0]], 255)
         seen_label = seen_label.reshape(h, w)
         for k in LABELS:
-            s = unclipped & (seen_label == k)
+            s = below_white & (seen_label == k)
             frame_sum[k] = frame_sum.get(k, 0) + x[s].sum(0)
             render_sum[k] = render_sum.get(k, 0) + render[s].sum(0)
+            sensor = raw[s] * t_true[j]
+            noisy_sum[k] = noisy_sum.get(k, 0) + sensor.sum(0)
+            clipped_sum[k] = clipped_sum.get(k, 0) + np.minimum(sensor, 1.0).sum(0)
         lum = render @ LUMA
         for a, b in zip(BANDS[1:-2], BANDS[2:-1], strict=True):
             s = unclipped & (lum >= a) & (lum < b)
@@ -280,15 +314,47 @@ def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) 
             est_sum[k] = est_sum.get(k, 0) + est[seen][s].sum(0)
     print(
         "\nOver the vertices these frames see in a clean sample:\n\n"
-        "| surface | frame / render (unclipped pixels) | render pixel / vertex truth "
-        "| HDR / vertex truth |\n|---|---|---|---|"
+        "| surface | frame / render (expected under half white) | a render at the frames' "
+        f"{frame_spp} spp, clipped at white / unclipped (same pixels) "
+        "| render pixel / vertex truth | HDR / vertex truth |\n|---|---|---|---|---|"
     )
     for k, name in LABELS.items():
         if np.all(tru_sum.get(k, 0) > 0) and np.all(render_sum.get(k, 0) > 0):
             f = " / ".join(f"{v:.3f}" for v in frame_sum[k] / render_sum[k])
+            c = " / ".join(f"{v:.3f}" for v in clipped_sum[k] / noisy_sum[k])
             a = " / ".join(f"{v:.3f}" for v in pix_sum[k] / tru_sum[k])
             b = " / ".join(f"{v:.3f}" for v in est_sum[k] / tru_sum[k])
-            print(f"| {name} | {f} | {a} | {b} |")
+            print(f"| {name} | {f} | {c} | {a} | {b} |")
+
+
+def clip_check(scan, scan_dir: Path, t_true: np.ndarray, args) -> None:
+    """Table (7): how much light the camera's clip takes from renders of a given spp.
+
+    The views are rendered at ``--render-spp`` (the reference, which picks the pixels it
+    expects under half the white level in every channel, in the frame's sensor units) and
+    at each ``--clip-spp``; per sample count, the sum of the render clipped at the white
+    level over the sum unclipped, on those pixels. Without Monte-Carlo noise it would be 1.
+    """
+    from reroom.synth.edits import render_scene
+
+    views = [int(x) for x in args.render_frames.split(",")]
+    cams = [(scan.frames[j].c2w, scan.frames[j].intrinsics) for j in views]
+    scene = scan_dir / "ground_truth" / "scene"
+    ref = render_scene(scene, cams, args.render_spp, seed=21)
+    print(
+        f"\n(7) frames {views}: a render clipped at the white level over the same unclipped, "
+        f"on the pixels a {args.render_spp}-spp render expects under half white\n"
+    )
+    print("| samples per pixel | clipped / unclipped |\n|---|---|")
+    for spp in [int(x) for x in args.clip_spp.split(",")]:
+        renders = render_scene(scene, cams, spp, seed=22)
+        kept = total = 0.0
+        for j, r, x in zip(views, ref, renders, strict=True):
+            below = (r * t_true[j]).max(-1) < 0.5
+            sensor = x[below] * t_true[j]
+            kept = kept + np.minimum(sensor, 1.0).sum(0)
+            total = total + sensor.sum(0)
+        print(f"| {spp} | " + " / ".join(f"{v:.4f}" for v in kept / total) + " |")
 
 
 if __name__ == "__main__":

@@ -107,3 +107,22 @@ def test_invert_refuses_an_unknown_fill(tmp_path: Path) -> None:
     result = runner.invoke(app, ["invert", str(tmp_path), "--unobserved-fill", "zero"])
     assert result.exit_code == 2
     assert "--unobserved-fill must be one of bounce, mean" in result.output
+
+
+def test_demo_scan_state_regenerates_a_scan_with_other_frames_or_samples(tmp_path: Path) -> None:
+    """`reroom demo` keeps its scan only if frame count and samples per pixel match."""
+    import json
+
+    from reroom.cli import demo_scan_state
+
+    scan = tmp_path / "scan"
+    assert demo_scan_state(scan, 24, 64) == "new"
+    (scan / "ground_truth").mkdir(parents=True)
+    (scan / "transforms.json").write_text(json.dumps({"frames": [{}] * 24}))
+    assert demo_scan_state(scan, 24, 64) == "replace"  # no ground truth to read the spp from
+    gt = scan / "ground_truth" / "ground_truth.json"
+    gt.write_text(json.dumps({"options": {"spp": 16}}))
+    assert demo_scan_state(scan, 24, 64) == "replace"  # made before session 16
+    gt.write_text(json.dumps({"options": {"spp": 64}}))
+    assert demo_scan_state(scan, 24, 64) == "reuse"
+    assert demo_scan_state(scan, 12, 64) == "replace"

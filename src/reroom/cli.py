@@ -90,10 +90,11 @@ def synth(
     spp: Annotated[
         int,
         typer.Option(
-            help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler; "
-            "64 for cleaner frames at 4x the time)."
+            help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler). "
+            "Below 64 the renderer's noise clips at the white level and the frames lose "
+            "light, most in their brightest channel (docs/architecture.md)."
         ),
-    ] = 16,
+    ] = 64,
     vertex_spp: Annotated[
         int, typer.Option(help="Samples per vertex for the true radiance.")
     ] = 256,
@@ -707,6 +708,26 @@ def run_command(
         raise typer.Exit(1)
 
 
+def demo_scan_state(scan_dir: Path, frames: int, spp: int) -> str:
+    """What ``reroom demo`` does with an earlier scan in ``scan_dir``.
+
+    ``"reuse"`` when it has ``frames`` frames rendered at ``spp`` samples per pixel,
+    ``"replace"`` when a scan is there but differs (or its files cannot be read), and
+    ``"new"`` when there is none.
+    """
+    import json
+
+    if not (scan_dir / "transforms.json").exists():
+        return "new"
+    try:
+        n = len(json.loads((scan_dir / "transforms.json").read_text())["frames"])
+        gt = json.loads((scan_dir / "ground_truth" / "ground_truth.json").read_text())
+        same = n == frames and int(gt["options"]["spp"]) == spp
+    except (OSError, ValueError, KeyError, TypeError):
+        same = False
+    return "reuse" if same else "replace"
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the demo's outputs.")] = Path(
@@ -721,16 +742,14 @@ def demo(
     """The main job on the embedded default: the `furnished` room, then `reroom run` on it.
 
     Writes the synthetic scan to OUT/scan (kept between runs: regenerated only when its
-    frame count differs), every stage's outputs and OUT/report.html to OUT, and, where a
-    Chromium browser exists, OUT/report.png (the report's top in headless Chromium).
+    frame count or samples per pixel differ), every stage's outputs and OUT/report.html to
+    OUT, and, where a Chromium browser exists, OUT/report.png (the report's top in headless
+    Chromium).
     """
-    import json
-
     scan_dir = out / "scan"
-    existing = None
-    with contextlib.suppress(OSError, ValueError):
-        existing = len(json.loads((scan_dir / "transforms.json").read_text())["frames"])
-    if existing == frames:
+    scan_spp = 64
+    existing = demo_scan_state(scan_dir, frames, scan_spp)
+    if existing == "reuse":
         console.print(f"reusing the scan in {scan_dir} ({frames} frames)")
     else:
         synth(
@@ -740,7 +759,7 @@ def demo(
             width=160,
             height=120,
             fov=60.0,
-            spp=16,
+            spp=scan_spp,
             vertex_spp=256,
             seed=0,
             hdri="courtyard",
@@ -750,7 +769,7 @@ def demo(
             response="gamma2.2",
             save_hdr=False,
             sheet=True,
-            overwrite=existing is not None,
+            overwrite=existing == "replace",
         )
     run_command(
         scan=scan_dir,
