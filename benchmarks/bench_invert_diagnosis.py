@@ -74,6 +74,9 @@ reads ``ground_truth/``, which the estimate never does.
 ``--indirect-scale S[,S...]``
     The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
     error in the indirect light moves the albedos and the lights.
+``--profile NAME``
+    A point or line light's solved profile (the scan's own ``invert/``) against the
+    truth in the same basis, bin by bin, and the downward and upward sums per phi bin.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -1035,6 +1038,58 @@ def render_consistency(scan: Path, work: Path, clearance: bool = True, n: int = 
         )
 
 
+def profile_bins(scan: Path, name: str) -> None:
+    """A point or line light's solved profile against the truth, bin by bin.
+
+    Reads the scan's own ``invert/`` (no solve): per inclination bin (0 = up, 180 =
+    down) and phi bin, the solved profile times its colour's luminance over the
+    evaluation's luminance scale ``k``, the true profile in the same basis
+    (``evaluate_invert``'s ``true_profile``: the light as it leaves its fixture), and
+    their ratio where the truth is above 1e-3; then each phi bin's downward and upward
+    sums, estimate over truth.
+    """
+    report = evaluate_invert(scan, scan / "invert")
+    scene = json.loads((scan / "invert" / "scene.json").read_text())
+    est = next(x for x in scene["lights"] if x["name"] == name)
+    ev = next(x for x in report["lights"] if x["name"] == name)
+    dist = ev["distribution"]
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    k = float(np.asarray(report["radiance_scale"]) @ lum)
+    solved = np.asarray(est["distribution"]["profile"], float)
+    bins = solved.shape[0]
+    solved = solved.reshape(bins, -1) * float(np.asarray(est["color"]) @ lum) / k
+    phi = solved.shape[1]
+    truth = (np.asarray(dist["true_profile"], float) @ lum).reshape(bins, phi)
+    print(
+        f"`{name}` ({dist['basis']}, {bins} x {phi} bins; relative L2 "
+        f"{100 * dist['relative_l2']:.1f} %), luminance / k, solved | true | ratio:\n"
+    )
+    head = " | ".join(f"phi {j}" for j in range(phi))
+    print(f"| theta | solved: {head} | true: {head} | ratio: {head} |")
+    print("|---|" + "---|" * (3 * phi))
+    for i in range(bins):
+        th = (i + 0.5) * 180.0 / bins
+        ratio = [
+            f"{solved[i, j] / truth[i, j]:.2f}" if truth[i, j] > 1e-3 else "-" for j in range(phi)
+        ]
+        print(
+            f"| {th:.1f} | "
+            + " | ".join(f"{v:.3f}" for v in solved[i])
+            + " | "
+            + " | ".join(f"{v:.3f}" for v in truth[i])
+            + " | "
+            + " | ".join(ratio)
+            + " |"
+        )
+    th = (np.arange(bins) + 0.5) * 180.0 / bins
+    for label, rows in (("down (theta > 90)", th > 90), ("up (theta < 90)", th < 90)):
+        cells = []
+        for j in range(phi):
+            t = truth[rows, j].sum()
+            cells.append(f"phi {j} {solved[rows, j].sum() / t:.2f}" if t > 1e-6 else f"phi {j} -")
+        print(f"\n{label}, sum of solved over sum of true per phi bin: " + ", ".join(cells))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1084,6 +1139,7 @@ def main() -> None:
     )
     ap.add_argument("--decimals", type=int, default=0, help="decimals of the printed %%")
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
+    ap.add_argument("--profile", default="", help="a light's solved profile against the truth")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
     DECIMALS[0] = args.decimals
@@ -1123,6 +1179,8 @@ def main() -> None:
         hdr_variants(args.scan, args.work, args.bin_by)
     if args.fireflies is not None:
         fireflies(args.scan, args.fireflies, args.work, args.spp)
+    if args.profile:
+        profile_bins(args.scan, args.profile)
 
 
 if __name__ == "__main__":
