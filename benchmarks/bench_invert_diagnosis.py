@@ -77,6 +77,10 @@ reads ``ground_truth/``, which the estimate never does.
 ``--profile NAME``
     A point or line light's solved profile (the scan's own ``invert/``) against the
     truth in the same basis, bin by bin, and the downward and upward sums per phi bin.
+``--shares NAME``
+    ``reroom invert`` once, then per inclination bin of light ``NAME`` the receivers it
+    lights most: how many, observed over modelled radiance, and every light's (and
+    ``E_ind``'s) share of their modelled irradiance.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -1090,6 +1094,66 @@ def profile_bins(scan: Path, name: str) -> None:
         print(f"\n{label}, sum of solved over sum of true per phi bin: " + ", ".join(cells))
 
 
+def bin_shares(scan: Path, work: Path, name: str) -> None:
+    """Who lights the receivers of each of a light's bins, in the solved model.
+
+    ``reroom invert`` once (HDR radiance, the scan's lights); each clustered receiver is
+    given to the inclination bin of light ``name`` that sends it the most (phi bins
+    summed). Per bin: the receivers (per cluster), observed over modelled radiance
+    (Rec. 709 luminance, sums), and each light's and ``E_ind``'s share of the modelled
+    irradiance there. A bin whose receivers get a small share from its own light is
+    held by little of the data: a small error of the others moves it a lot.
+    """
+    res = _invert(scan, work / "shares")
+    prob, sol = res.problem, res.solve
+    intens = sol.intensity_vector(prob.lights)
+    offsets = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])])
+    names = [b.name for b in prob.lights]
+    k = names.index(name)
+    parts = {
+        b.name: np.asarray(
+            prob.transfer[:, offsets[i] : offsets[i + 1]] @ intens[offsets[i] : offsets[i + 1]]
+        )
+        for i, b in enumerate(prob.lights)
+    }
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    irr = prob.indirect + sum(parts.values())
+    model = sol.albedo[prob.cluster] / np.pi * irr
+    own = prob.transfer[:, offsets[k] : offsets[k + 1]]
+    own = own.toarray() if hasattr(own, "toarray") else np.asarray(own)
+    bins = 32
+    per_theta = own.reshape(len(own), bins, -1).sum(2)
+    theta_bin = np.where(per_theta.sum(1) > 0, per_theta.argmax(1), -1)
+    print(
+        f"Receivers by the bin of `{name}` that sends them most; shares of the modelled "
+        "irradiance (luminance):\n"
+    )
+    print(
+        "| theta | receivers ("
+        + " / ".join(prob.cluster_names)
+        + ") | observed / modelled | "
+        + " | ".join(names)
+        + " | E_ind |"
+    )
+    print("|---|---|---|" + "---|" * (len(names) + 1))
+    for b in range(bins):
+        rows = theta_bin == b
+        if not rows.any():
+            continue
+        total = float((irr[rows] @ lum).sum())
+        shares = [float((parts[n][rows] @ lum).sum()) / total for n in names]
+        shares.append(float((prob.indirect[rows] @ lum).sum()) / total)
+        count = np.bincount(prob.cluster[rows], minlength=len(prob.cluster_names))
+        ratio = float((prob.radiance[rows] @ lum).sum() / (model[rows] @ lum).sum())
+        print(
+            f"| {(b + 0.5) * 180 / bins:.1f} | "
+            + " / ".join(str(int(c)) for c in count)
+            + f" | {ratio:.3f} | "
+            + " | ".join(f"{x:.2f}" for x in shares)
+            + " |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1140,6 +1204,7 @@ def main() -> None:
     ap.add_argument("--decimals", type=int, default=0, help="decimals of the printed %%")
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--profile", default="", help="a light's solved profile against the truth")
+    ap.add_argument("--shares", default="", help="who lights the receivers of a light's bins")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
     DECIMALS[0] = args.decimals
@@ -1181,6 +1246,8 @@ def main() -> None:
         fireflies(args.scan, args.fireflies, args.work, args.spp)
     if args.profile:
         profile_bins(args.scan, args.profile)
+    if args.shares:
+        bin_shares(args.scan, args.work, args.shares)
 
 
 if __name__ == "__main__":
