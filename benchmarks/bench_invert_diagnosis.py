@@ -81,6 +81,10 @@ reads ``ground_truth/``, which the estimate never does.
     ``reroom invert`` once, then per inclination bin of light ``NAME`` the receivers it
     lights most: how many, observed over modelled radiance, and every light's (and
     ``E_ind``'s) share of their modelled irradiance.
+``--fix-at-truth NAME[,NAME]``
+    ``reroom invert`` once, then its problem re-solved with those point or line lights
+    fixed at their true profile (moved into ``E_ind``): the other lights' power errors
+    and the albedos against the run's.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -1154,6 +1158,81 @@ def bin_shares(scan: Path, work: Path, name: str) -> None:
         )
 
 
+def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
+    """The run's problem re-solved with some point or line lights fixed at their truth.
+
+    ``reroom invert`` once (HDR radiance, the scan's lights); then each named light's
+    columns are taken out of the problem and its true profile (``evaluate_invert``'s
+    ``true_profile`` times the HDR radiance's scale ``k``: the light as it leaves its
+    fixture, in the solve's units) moves into ``E_ind``, and the rest is solved again.
+    Printed: every other light's power error and the albedos, scaled from the run's own
+    evaluation by the re-solve's ratios, next to the run's. It asks whether an error of
+    one light is held by another: if fixing light A leaves B's error as it was, B's error
+    is not A's.
+    """
+    from reroom.invert.export import light_entries
+
+    res = _invert(scan, work / "fix_at_truth")
+    report = evaluate_invert(scan, work / "fix_at_truth")
+    prob = res.problem
+    k = np.asarray(report["radiance_scale"], float)
+    offsets = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])])
+    order = [b.name for b in prob.lights]
+    errors = {
+        e["name"]: np.asarray(e.get("effective_power_relative_error") or e["power_relative_error"])
+        for e in report["lights"]
+        if e.get("power_relative_error") is not None
+    }
+    truth_of = {e["name"]: e for e in report["lights"]}
+
+    def powers(r) -> dict[str, np.ndarray]:
+        return {e["name"]: np.asarray(e["power"], float) for e in light_entries(r, None)}
+
+    base = powers(res)
+    indirect = prob.indirect.copy()
+    fixed_cols: list[np.ndarray] = []
+    for name in names:
+        i = order.index(name)
+        true_profile = np.asarray(truth_of[name]["distribution"]["true_profile"], float)
+        cols = np.arange(offsets[i], offsets[i + 1])
+        indirect = indirect + np.asarray(prob.transfer[:, cols] @ (true_profile * k))
+        fixed_cols.append(cols)
+    keep = np.setdiff1d(np.arange(offsets[-1]), np.concatenate(fixed_cols))
+    kept = [j for j, b in enumerate(prob.lights) if b.name not in names]
+    prob2 = dataclasses.replace(
+        prob,
+        indirect=indirect,
+        transfer=prob.transfer[:, keep],
+        lights=[prob.lights[j] for j in kept],
+    )
+    sol2 = solve_lighting(
+        prob2, res.solve_options if hasattr(res, "solve_options") else SolveOptions()
+    )
+    res2 = dataclasses.replace(
+        res,
+        problem=prob2,
+        solve=sol2,
+        lights=[res.lights[j] for j in kept],
+        light_info=[res.light_info[j] for j in kept],
+    )
+    after = powers(res2)
+    print(
+        f"`{', '.join(names)}` fixed at the truth, the rest re-solved (objective "
+        f"{res.solve.objective:.1f} → {sol2.objective:.1f}):\n"
+    )
+    print("| | the run | re-solved |\n|---|---|---|")
+    for c, cname in enumerate(prob.cluster_names):
+        if cname not in CLUSTERS:
+            continue
+        run_err = np.asarray(report["clusters"][cname]["relative_error"])
+        new_err = (1 + run_err) * sol2.albedo[c] / res.solve.albedo[c] - 1
+        print(f"| {cname} | {_pct(run_err)} | {_pct(new_err)} |")
+    for name in after:
+        if name in errors:
+            new_err = (1 + errors[name]) * after[name] / base[name] - 1
+            print(f"| {name} | {_pct(errors[name])} | {_pct(new_err)} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1205,6 +1284,9 @@ def main() -> None:
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--profile", default="", help="a light's solved profile against the truth")
     ap.add_argument("--shares", default="", help="who lights the receivers of a light's bins")
+    ap.add_argument(
+        "--fix-at-truth", default="", help="comma-separated point/line lights fixed at the truth"
+    )
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
     DECIMALS[0] = args.decimals
@@ -1248,6 +1330,8 @@ def main() -> None:
         profile_bins(args.scan, args.profile)
     if args.shares:
         bin_shares(args.scan, args.work, args.shares)
+    if args.fix_at_truth:
+        fix_at_truth(args.scan, args.work, args.fix_at_truth.split(","))
 
 
 if __name__ == "__main__":
