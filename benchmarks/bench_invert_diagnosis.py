@@ -69,7 +69,7 @@ reads ``ground_truth/``, which the estimate never does.
     other seeds, every clustered vertex, the subset as solved before session 15 (each
     row counted once; also with ``smooth_lambda`` over the multiplicity), the counted
     subset without its rare rows, and the line's theta or phi smoothness pairs or the
-    window's scaled x10 / x100, the point lights' x0.1 / x0.01. Errors per cluster and light, scaled from the run's own
+    window's scaled x10 / x100 (the line's up to x1e5), the point lights' x0.1 / x0.01. Errors per cluster and light, scaled from the run's own
     evaluation by each variant's albedo and power ratios.
 ``--indirect-scale S[,S...]``
     The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
@@ -965,7 +965,8 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
     finally:
         solve_mod._solve_rows = rows_of
     for kind, which in (("line", "theta"), ("line", "phi"), ("window", "all"), ("point", "all")):
-        for factor in (0.1, 0.01) if kind == "point" else (10.0, 100.0):
+        factors = {"point": (0.1, 0.01), "line": (10.0, 100.0, 1e3, 1e4, 1e5)}
+        for factor in factors.get(kind, (10.0, 100.0)):
             blocks = []
             for b in prob.lights:
                 if b.kind == kind and b.adjacency is not None:
