@@ -522,12 +522,12 @@ def main() -> None:
         print(_row(r))
     print("\nWhere the squared HDR error is, per view (near an edge: within 1 px of a depth")
     print("jump or a normal turn; the rest by surface):\n")
-    print("| edit | view | pixels near edges | their error share | RMSE off edges | wall | floor "
-          "| ceiling | other | ratio of means off edges: wall / floor / ceiling |\n"
-          "|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+    print("| edit | view | RMSE | pixels near edges | their error share | RMSE off edges | wall "
+          "| floor | ceiling | other | ratio of means off edges: wall / floor / ceiling |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     for r in results:
         for q in r["per_view"]:
-            print(f"| {r['edit']} | {q['view']} | {_pc(q['edge_pixel_share'])} "
+            print(f"| {r['edit']} | {q['view']} | {_pc(q['rel_rmse'])} | {_pc(q['edge_pixel_share'])} "
                   f"| {_pc(q['edge_error_share'])} | {_pc(q['rel_rmse_off_edges'])} | "
                   + " | ".join(_pc(q[f"{n}_error_share_off_edges"])
                                for n in ("wall", "floor", "ceiling", "other")) + " | "

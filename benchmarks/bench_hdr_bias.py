@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reroom.hdr.linearize import response_lut
+from reroom.hdr.linearize import LUMA, response_lut
 from reroom.hdr.observe import (
     EDGE_FLAGS,
     ObserveOptions,
@@ -64,7 +64,6 @@ from reroom.io.mesh import read_ply
 from reroom.rays import RayCaster
 from reroom.scan import load_scan
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 BANDS = [0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.8, np.inf]
 LABELS = {0: "wall", 1: "floor", 2: "ceiling", 3: "door", 4: "window", 5: "baseboard"}
 
@@ -128,9 +127,11 @@ def main() -> None:
     else:
         s = np.load(scan_dir / "hdr" / "hdr_extras.npz")["scales"]
         scales = s / np.nanmedian(s / t_true, axis=0)
+    wb = np.median([f["white_balance"] for f in gt["frames"]], axis=0)
     print(
         f"`{scan_dir}`: {len(tru)} vertices ({int(keep.sum())} not emitters), "
-        f"{len(t_true)} frames, scales: {args.scales}; bands by "
+        f"{len(t_true)} frames at {gt['options']['spp']} spp (median white balance "
+        f"{' / '.join(f'{x:.2f}' for x in wb)}), scales: {args.scales}; bands by "
         f"{args.bin_by or 'the compared truth itself (regresses to the mean)'}"
     )
 

@@ -108,7 +108,9 @@ from pathlib import Path
 
 import numpy as np
 
+from reroom.hdr.linearize import LUMA
 from reroom.invert.evaluate import evaluate_invert, hidden_as_unobserved, lights_from_truth
+from reroom.invert.export import light_entries
 from reroom.invert.pipeline import InvertOptions, run_invert
 from reroom.invert.solve import SolveOptions, solve_lighting
 from reroom.io.mesh import read_ply, write_ply
@@ -300,7 +302,7 @@ def window_photos(scan: Path) -> None:
     bound = ph.bound.reshape(-1, 3) / k
     cnt, sat = ph.count.ravel(), ph.saturated.ravel()
     seen = (cnt > 0) | (sat > 0)
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = LUMA
     print(
         f"{stats['samples'][0]} samples through the window, {stats['saturated'][0]} saturated; "
         f"k = {np.round(k, 3).tolist()}; {int(shown.sum())} cells shown\n"
@@ -439,7 +441,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
     e_ind_true = np.pi * (prob.radiance - direct) / rho_v
     e_dir = sum(irradiance(true_int).values())
     pred = rho_true[prob.cluster] / np.pi * (prob.indirect + e_dir)
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = LUMA
     print(
         "\n| cluster | predicted / observed at the truth | E_dir model / path tracer | E_ind model / path tracer |"
     )
@@ -878,6 +880,21 @@ def light_swaps(scan: Path, work: Path) -> None:
         print(_row(label, evaluate_invert(src, work / name)), flush=True)
 
 
+def _power_errors(report: dict) -> dict[str, np.ndarray]:
+    """Each evaluated light's power error (against what leaves its fitting where known)."""
+    return {
+        e["name"]: np.asarray(e.get("effective_power_relative_error") or e["power_relative_error"])
+        for e in report["lights"]
+        if e.get("power_relative_error") is not None
+    }
+
+
+def _powers(res, min_bin_support: float) -> dict[str, np.ndarray]:
+    """The powers ``scene.json`` would give each light of an invert result."""
+    ents = light_entries(res, None, min_bin_support)
+    return {e["name"]: np.asarray(e["power"], float) for e in ents}
+
+
 def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
     """The run's eq. 5.7 problem re-solved with the subset and the smoothness varied.
 
@@ -891,7 +908,6 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
     per light (the powers ``scene.json`` would get, fills of poorly seen bins included).
     """
     import reroom.invert.solve as solve_mod
-    from reroom.invert.export import light_entries
 
     out = work / "variants"
     res = _invert(scan, out, None, solve)
@@ -900,16 +916,11 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
     opts = InvertOptions(pictures=False, solve=solve, **INVERT_EXTRA)
 
     def powers(sol) -> dict[str, np.ndarray]:
-        ents = light_entries(dataclasses.replace(res, solve=sol), None, opts.min_bin_support)
-        return {e["name"]: np.asarray(e["power"], float) for e in ents}
+        return _powers(dataclasses.replace(res, solve=sol), opts.min_bin_support)
 
     base_err = {c: np.asarray(v["relative_error"]) for c, v in report["clusters"].items()}
     base_pow = powers(base)
-    light_err = {
-        e["name"]: np.asarray(e.get("effective_power_relative_error") or e["power_relative_error"])
-        for e in report["lights"]
-        if e.get("power_relative_error") is not None
-    }
+    light_err = _power_errors(report)
     names = [c for c in CLUSTERS if c in prob.cluster_names]
     lights = [b.name for b in prob.lights if b.name in light_err]
     print(
@@ -1062,7 +1073,7 @@ def profile_bins(scan: Path, name: str) -> None:
     est = next(x for x in scene["lights"] if x["name"] == name)
     ev = next(x for x in report["lights"] if x["name"] == name)
     dist = ev["distribution"]
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = LUMA
     k = float(np.asarray(report["radiance_scale"]) @ lum)
     solved = np.asarray(est["distribution"]["profile"], float)
     bins = solved.shape[0]
@@ -1121,7 +1132,7 @@ def bin_shares(scan: Path, work: Path, name: str) -> None:
         )
         for i, b in enumerate(prob.lights)
     }
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = LUMA
     irr = prob.indirect + sum(parts.values())
     model = sol.albedo[prob.cluster] / np.pi * irr
     own = prob.transfer[:, offsets[k] : offsets[k + 1]]
@@ -1171,25 +1182,16 @@ def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
     one light is held by another: if fixing light A leaves B's error as it was, B's error
     is not A's.
     """
-    from reroom.invert.export import light_entries
-
     res = _invert(scan, work / "fix_at_truth")
     report = evaluate_invert(scan, work / "fix_at_truth")
     prob = res.problem
     k = np.asarray(report["radiance_scale"], float)
     offsets = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])])
     order = [b.name for b in prob.lights]
-    errors = {
-        e["name"]: np.asarray(e.get("effective_power_relative_error") or e["power_relative_error"])
-        for e in report["lights"]
-        if e.get("power_relative_error") is not None
-    }
+    errors = _power_errors(report)
     truth_of = {e["name"]: e for e in report["lights"]}
-
-    def powers(r) -> dict[str, np.ndarray]:
-        return {e["name"]: np.asarray(e["power"], float) for e in light_entries(r, None)}
-
-    base = powers(res)
+    min_bin_support = InvertOptions(**INVERT_EXTRA).min_bin_support
+    base = _powers(res, min_bin_support)
     indirect = prob.indirect.copy()
     fixed_cols: list[np.ndarray] = []
     for name in names:
@@ -1216,7 +1218,7 @@ def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
         lights=[res.lights[j] for j in kept],
         light_info=[res.light_info[j] for j in kept],
     )
-    after = powers(res2)
+    after = _powers(res2, min_bin_support)
     print(
         f"`{', '.join(names)}` fixed at the truth, the rest re-solved (objective "
         f"{res.solve.objective:.1f} → {sol2.objective:.1f}):\n"

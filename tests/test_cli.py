@@ -126,3 +126,13 @@ def test_demo_scan_state_regenerates_a_scan_with_other_frames_or_samples(tmp_pat
     gt.write_text(json.dumps({"options": {"spp": 64}}))
     assert demo_scan_state(scan, 24, 64) == "reuse"
     assert demo_scan_state(scan, 12, 64) == "replace"
+
+
+def test_synth_command_defaults_to_the_generators_frame_samples() -> None:
+    """`reroom synth --spp` and `SynthOptions.spp` share one default (64 since session 16)."""
+    import inspect
+
+    from reroom.cli import synth
+    from reroom.synth.generate import SynthOptions
+
+    assert inspect.signature(synth).parameters["spp"].default == SynthOptions().spp

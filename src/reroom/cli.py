@@ -746,8 +746,10 @@ def demo(
     OUT, and, where a Chromium browser exists, OUT/report.png (the report's top in headless
     Chromium).
     """
+    from reroom.synth.generate import SynthOptions
+
     scan_dir = out / "scan"
-    scan_spp = 64
+    scan_spp = SynthOptions().spp  # the generator's default, as `reroom synth`
     existing = demo_scan_state(scan_dir, frames, scan_spp)
     if existing == "reuse":
         console.print(f"reusing the scan in {scan_dir} ({frames} frames)")
