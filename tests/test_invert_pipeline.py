@@ -212,6 +212,12 @@ def test_line_light_outputs(tmp_path: Path, phi_bins: int) -> None:
     assert np.asarray(dist["profile_solved"]).shape == (8, phi_bins)
     # The renderer needs the clearance the profile was solved with (reroom.edit.model).
     assert dist["shadow_clearance"] == opts.line_clearance
+    # The shape prior's open fraction: a bare tube in an empty box is open everywhere
+    # but steeply towards the ceiling 0.2 m above it, within the fixture's reach.
+    open_frac = np.asarray(dist["open_fraction"])
+    assert open_frac.shape == (8, phi_bins) and dist["tube_radius"] == 0.02
+    assert np.all(open_frac[4:] == 1.0) and np.all(open_frac >= 0)
+    assert block.shape is not None and block.shape_weight == opts.line_shape_prior > 0
     color = np.asarray(doc["lights"][0]["color"])
     np.testing.assert_allclose(
         doc["lights"][0]["power"], line_light_power(grid.ravel(), 1.0, phi_bins) * color

@@ -325,6 +325,39 @@ def test_min_area_rectangle_of_a_square_is_its_sides() -> None:
     assert np.allclose(comp.size, [0.6, 0.6], atol=0.01)
 
 
+def test_a_tube_seen_from_below_gets_its_true_axis() -> None:
+    """Only the lower half of a 1.6 cm tube is bright: the axis is the circle's centre."""
+    from scipy.spatial import cKDTree
+
+    from reroom.lights.decide import make_light
+
+    r, z = 0.016, 2.6
+    ang = np.linspace(np.pi, 2 * np.pi, 9)  # the lower half, seen from below
+    x = np.linspace(1.0, 2.2, 61)
+    xx, aa = np.meshgrid(x, ang, indexing="ij")
+    v = np.stack([xx.ravel(), 3.0 + r * np.cos(aa.ravel()), z + r * np.sin(aa.ravel())], 1)
+    n = len(v)
+    normals = (v - [0.0, 3.0, z]) * [0.0, 1.0, 1.0] / r
+    comp = describe_component(
+        np.arange(n), v, normals, np.full(n, 1e-4), np.ones((n, 3)), np.ones(n),
+        np.ones(n, bool), cKDTree(v), 0.05,
+    )  # fmt: skip
+    assert comp.center[2] < z - 0.007  # the box's middle: under the axis
+    assert comp.section_radius == pytest.approx(r, rel=1e-6)
+    light = make_light("line", comp, {}, np.array([0.0, 0.0, 1.0]), "")
+    for end in ("p0", "p1"):
+        np.testing.assert_allclose(np.asarray(light.geometry[end])[1:], [3.0, z], atol=1e-6)
+    assert light.geometry["radius"] == pytest.approx(r, rel=1e-6)
+    # A flat strip has no circle to speak of: the box's middle stays.
+    flat = v * [1, 1, 0] + [0, 0, z]
+    comp = describe_component(
+        np.arange(n), flat, normals, np.full(n, 1e-4), np.ones((n, 3)), np.ones(n),
+        np.ones(n, bool), cKDTree(flat), 0.05,
+    )  # fmt: skip
+    light = make_light("line", comp, {}, np.array([0.0, 0.0, 1.0]), "")
+    np.testing.assert_allclose((np.asarray(light.geometry["p0"]))[1:], [3.0, z], atol=1e-6)
+
+
 def test_view_consistency_tells_emitters_from_highlights() -> None:
     """Candidate 0 is bright in every frame, candidate 1 in 2 of 10."""
     n_f = 10

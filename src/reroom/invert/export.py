@@ -371,6 +371,10 @@ def _line_entry(
     }
     if "shadow_clearance" in info:
         dist["shadow_clearance"] = float(info["shadow_clearance"])
+    if "open_fraction" in info:
+        # The shape prior: the fraction of the tube the scanned fixture leaves open.
+        dist["open_fraction"] = np.asarray(info["open_fraction"], float).reshape(shape).tolist()
+        dist["tube_radius"] = float(info["tube_radius"])
     if support is not None:
         sup = np.asarray(support, float)
         dist["support"] = sup.reshape(shape).tolist()

@@ -28,6 +28,7 @@ from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
 from reroom.invert.fill import DEFAULT_FILL_ALBEDO, bounce_fill
+from reroom.invert.line_fixture import line_open_fraction, scan_fixture_caster
 from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -91,6 +92,15 @@ class InvertOptions:
         recovers the *bare* tube's intensity in every direction some receiver sees past
         them, and its power counted the light the baffles stop (+150 to +200 % against
         what leaves the fixture on `furnished`).
+    line_shape_prior : float
+        Weight of the line lights' shape prior, relative to the ``theta`` smoothness
+        (0: none). A tube is diffuse, so in a fixture its intensity is the bare tube's
+        ``i0`` times the fraction of the tube the fixture leaves open in each direction
+        (:mod:`reroom.invert.line_fixture`, computed on the scanned mesh within
+        ``line_clearance`` of the tube). The solve pulls the
+        profile toward ``i0 * open`` with ``i0`` free (``LightBlock.shape``).
+    line_fixture_samples : int
+        Points on the tube per direction when integrating the open fraction.
     rays_per_receiver : int
         Hemisphere rays per receiving vertex.
     receiver_voxel : float
@@ -198,6 +208,8 @@ class InvertOptions:
     line_phi_fold: bool = True
     line_phi_smooth: float = 1e5
     line_clearance: float = 0.3
+    line_shape_prior: float = 1e5
+    line_fixture_samples: int = 64
     rays_per_receiver: int = 512
     receiver_voxel: float = 0.1
     line_segments: int = 16
@@ -336,6 +348,38 @@ def emitter_surfaces(
     for k, light in enumerate(wins):
         window_of[ids == light_list.index(light)] = k
     return areas, wins, area_of, window_of
+
+
+#: Tube radius (metres) assumed for a line light whose geometry has none (a T8 tube).
+DEFAULT_TUBE_RADIUS = 0.013
+
+
+def _line_open_shape(
+    mesh, geometry: dict, basis: LineBasis, options: InvertOptions,
+    notes: list[str],
+) -> tuple[np.ndarray | None, dict]:  # fmt: skip
+    """The open fraction of a line light's tube per bin, from the scanned fixture.
+
+    ``(None, {})`` when the prior is off; ``(None, {...})`` with a note when the scanned
+    fixture hides the tube in every direction (then the prior would say nothing).
+    """
+    if options.line_shape_prior <= 0:
+        return None, {}
+    radius = float(geometry.get("radius", DEFAULT_TUBE_RADIUS))
+    p0, p1 = np.asarray(geometry["p0"], float), np.asarray(geometry["p1"], float)
+    fixture = scan_fixture_caster(mesh.vertices, mesh.faces, p0, p1, radius, options.line_clearance)
+    if fixture is None:
+        open_frac = np.ones(basis.size)
+    else:
+        open_frac = line_open_fraction(
+            fixture.occluded, p0, p1, np.asarray(geometry["d_perp"], float), radius, basis,
+            options.line_clearance, samples=options.line_fixture_samples, seed=options.seed,
+        )  # fmt: skip
+    info = {"open_fraction": np.round(open_frac, 4).tolist(), "tube_radius": radius}
+    if not np.any(open_frac > 0):
+        notes.append("a line light's scanned fixture hides its tube everywhere: no shape prior")
+        return None, info
+    return open_frac, info
 
 
 def emitter_classes(
@@ -565,6 +609,7 @@ def run_invert(
                 }
             )
         elif light.type == "line":
+            shape, open_info = _line_open_shape(mesh, g, line_basis, options, notes)
             f = line_light_transfer(
                 caster,
                 p_recv,
@@ -577,7 +622,16 @@ def run_invert(
                 clearance=options.line_clearance,
             )
             blocks.append(
-                LightBlock(light.name, "line", line_basis.size, True, line_adj, line_adj_w)
+                LightBlock(
+                    light.name,
+                    "line",
+                    line_basis.size,
+                    True,
+                    line_adj,
+                    line_adj_w,
+                    shape=shape,
+                    shape_weight=options.line_shape_prior if shape is not None else 0.0,
+                )
             )
             info.append(
                 {
@@ -585,6 +639,7 @@ def run_invert(
                     "type": "line",
                     "geometry": g,
                     "shadow_clearance": options.line_clearance,
+                    **open_info,
                     "basis": {
                         "theta_bins": line_basis.theta_bins,
                         "phi_bins": line_basis.phi_bins,

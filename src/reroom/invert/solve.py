@@ -18,6 +18,10 @@ relative), ``w`` the reweighting of eq. 5.8 (``R = Lbar / E_ind``, ``w = 1`` if
 ``lambda_l = lambda_smooth * mean_j ||F_lj||_w^2 * (0.5 / pi)^2``: the thesis's weak
 smoothness made independent of units, relative to the data curvature of one basis
 element. Cells no vertex sees are then the harmonic interpolation of their neighbours.
+A light with a prior shape ``v`` (``LightBlock.shape``, e.g. the part of a tube its
+scanned fixture leaves open) adds ``shape_weight * lambda_l * ||(1 - u u^T) I_l||^2``
+with ``u = v / ||v||``: the part of ``I_l`` that is no multiple of ``v``, whatever the
+scale, so the prior fixes the profile's shape and leaves its intensity to the data.
 
 Monochromatic lights (points and lines) are parametrised *exactly* as
 ``I_l^c = col_lc * p_l`` with ``||col_l|| = 1`` (instead of the thesis's penalty
@@ -97,6 +101,15 @@ class LightBlock:
         Relative weight of each pair's smoothness term (default 1 each): a line light's
         :class:`~reroom.invert.basis.LineBasis` weighs its ``phi`` neighbours apart from
         its ``theta`` neighbours.
+    shape : ndarray, shape (size,), optional
+        A prior shape ``v >= 0`` of the light's intensities (of its profile, when
+        monochrome), up to scale: the solve adds ``shape_weight * lambda_l * ||p - (v.p
+        / v.v) v||^2``, which pulls the intensities toward ``i0 v`` and leaves ``i0``
+        free. A line light in a fixture uses the fraction of its tube the scanned
+        fixture leaves open (:mod:`reroom.invert.line_fixture`).
+    shape_weight : float
+        Weight of that prior, relative to the smoothness weight ``lambda_l``
+        (0: no prior).
     """
 
     name: str
@@ -105,6 +118,8 @@ class LightBlock:
     monochrome: bool = False
     adjacency: np.ndarray | None = None
     adjacency_weights: np.ndarray | None = None
+    shape: np.ndarray | None = None
+    shape_weight: float = 0.0
 
 
 @dataclass
@@ -154,6 +169,14 @@ class InverseProblem:
                 raise SolveError(f"light {light.name!r} has unknown kind {light.kind!r}")
             if light.size < 1:
                 raise SolveError(f"light {light.name!r} has no basis elements")
+            if light.shape is not None:
+                v = np.asarray(light.shape, float)
+                if v.shape != (light.size,) or not np.all(np.isfinite(v)) or v.min() < 0:
+                    raise SolveError(
+                        f"light {light.name!r} needs a finite shape >= 0 of {light.size} values"
+                    )
+                if not np.isfinite(light.shape_weight) or light.shape_weight < 0:
+                    raise SolveError(f"light {light.name!r} needs a shape_weight >= 0")
             if light.adjacency is not None and len(light.adjacency):
                 adj = np.asarray(light.adjacency)
                 if adj.ndim != 2 or adj.shape[1] != 2 or adj.min() < 0 or adj.max() >= light.size:
@@ -364,6 +387,23 @@ def _smoothness_rows(
             rows += [r, r]
             cols += [local[offsets[li] + int(i)], local[offsets[li] + int(j)]]
             vals += [s, -s]
+            r += 1
+    for li, light in enumerate(lights):
+        if light.shape is None or light.shape_weight <= 0 or lam.get(light.name, 0) <= 0:
+            continue
+        v = np.asarray(light.shape, float)
+        if not np.any(v > 0):
+            continue
+        # The projection off the prior's direction: its rows penalise the part of the
+        # intensities that is not a multiple of the shape, whatever the scale.
+        u = v / np.linalg.norm(v)
+        proj = np.sqrt(lam[light.name] * light.shape_weight) * (np.eye(light.size) - np.outer(u, u))
+        local_cols = np.array([local[offsets[li] + j] for j in range(light.size)])
+        for row in proj:
+            nz = np.flatnonzero(row)
+            rows += [r] * len(nz)
+            cols += local_cols[nz].tolist()
+            vals += row[nz].tolist()
             r += 1
     return sp.csr_matrix((vals, (rows, cols)), shape=(r, n_cols))
 

@@ -11,14 +11,21 @@ panel at 5 next to a ceiling at 0.3), a lit pool of light fades out (contrast ne
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["Component", "bright_components", "describe_component", "mesh_adjacency", "vertex_areas"]
+__all__ = [
+    "Component",
+    "bright_components",
+    "describe_component",
+    "fit_circle",
+    "mesh_adjacency",
+    "vertex_areas",
+]
 
 
 def mesh_adjacency(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
@@ -97,6 +104,13 @@ class Component:
     edge_contrast:
         Mean luminance of the component over the median luminance of the observed
         vertices within a few centimetres outside it (inf if none is observed).
+    section_center:
+        A point on the axis of the cylinder through the component's cross-section (the
+        circle fitted to its positions in the plane of ``axes[1]`` and ``axes[2]``, at
+        the middle of ``axes[0]``): a tube's axis, which ``center`` misses when the scan
+        shows only the tube's lower half. NaN when the fit fails.
+    section_radius:
+        That circle's radius (NaN when the fit fails).
     """
 
     vertices: np.ndarray
@@ -112,6 +126,8 @@ class Component:
     mean_luminance: float
     peak_luminance: float
     edge_contrast: float
+    section_center: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    section_radius: float = float("nan")
 
     @property
     def size(self) -> tuple[float, float]:
@@ -152,6 +168,10 @@ def describe_component(
     coords = q @ axes.T
     lo, hi = coords.min(0), coords.max(0)
     center = centroid + ((lo + hi) / 2) @ axes
+    sec_center, sec_radius = np.full(3, np.nan), float("nan")
+    if len(p) >= 3:
+        (c1, c2), sec_radius = fit_circle(coords[:, 1:3])
+        sec_center = centroid + np.array([(lo[0] + hi[0]) / 2, c1, c2]) @ axes
     lum = luminance[members]
     ring = _outer_ring(members, p, tree, ring_radius)
     ring = ring[observed[ring]]
@@ -172,7 +192,23 @@ def describe_component(
         mean_luminance=mean_lum,
         peak_luminance=float(np.percentile(lum, 95)),
         edge_contrast=contrast,
+        section_center=sec_center,
+        section_radius=sec_radius,
     )
+
+
+def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre ``(2,)`` and radius of the circle through 2D points, least squares.
+
+    Kasa's algebraic fit (``x^2 + y^2 = 2 a x + 2 b y + c``, linear): unlike the points'
+    mean, it finds the centre of an arc, e.g. a lamp shade in a corner that the scan
+    shows on one side only.
+    """
+    x, y = xy[:, 0], xy[:, 1]
+    a = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
+    sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
+    centre = sol[:2]
+    return centre, float(np.sqrt(max(sol[2] + centre @ centre, 0.0)))
 
 
 def _min_area_axes(q: np.ndarray, axes: np.ndarray, steps: int = 90) -> np.ndarray:

@@ -14,7 +14,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
-from reroom.lights.candidates import Component, bright_components, describe_component
+from reroom.lights.candidates import (
+    Component,
+    bright_components,
+    describe_component,
+    fit_circle,
+)
 from reroom.lights.decide import evidence
 from reroom.lights.lightset import Light, Rejected
 from reroom.lights.room import CEILING, FLOOR, OTHER, RoomModel
@@ -292,17 +297,3 @@ def bulb_from_pool_edge(
         "edge_sectors": len(agree),
         "height_from": "pool edge",
     }
-
-
-def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float]:
-    """Centre ``(2,)`` and radius of the circle through 2D points, least squares.
-
-    Kasa's algebraic fit (``x^2 + y^2 = 2 a x + 2 b y + c``, linear): unlike the points'
-    mean, it finds the centre of an arc, e.g. a lamp shade in a corner that the scan
-    shows on one side only.
-    """
-    x, y = xy[:, 0], xy[:, 1]
-    a = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
-    sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
-    centre = sol[:2]
-    return centre, float(np.sqrt(max(sol[2] + centre @ centre, 0.0)))

@@ -1,0 +1,71 @@
+"""What does an inverse-rendering option do on a finished run? ``reroom invert --set`` swept.
+
+For each setting (``NAME=VALUE``, several joined by commas), links a finished ``reroom
+run`` folder's inputs (scan, HDR, layout, lights) into ``WORK/<tag>``, runs ``reroom
+invert`` there with those ``--set`` overrides, and prints the run's own evaluation
+(``bench_run.evaluate``: cluster albedos, each light's power, power leaving its fitting,
+distribution error) under a header with the setting and the invert's wall time::
+
+    python benchmarks/bench_invert_sweep.py RUN line_shape_prior=1e4 line_shape_prior=1e5 \\
+        "line_shape_prior=1e5,line_phi_smooth=1e4" [--work /tmp/reroom_sweep]
+
+``RUN`` must hold a ground truth (a synthetic scan run with ``bench_run.py --scan``).
+Everything here is evaluation; the estimate never reads ``ground_truth/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_run import evaluate  # noqa: E402
+
+#: What ``reroom invert`` reads from a run folder.
+INPUTS = ("ground_truth", "hdr", "images", "layout", "lights", "mesh.ply", "transforms.json")
+
+
+def sweep_dir(run: Path, work: Path, setting: str) -> Path:
+    """A fresh folder linking ``run``'s inputs, named after the setting."""
+    tag = re.sub(r"[^A-Za-z0-9]+", "_", setting).strip("_") or "defaults"
+    d = work / f"{run.name}_{tag}"
+    if d.exists():
+        shutil.rmtree(d)
+    d.mkdir(parents=True)
+    for name in INPUTS:
+        if (run / name).exists():
+            (d / name).symlink_to((run / name).resolve())
+    return d
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("run", type=Path, help="a finished `reroom run` folder with ground truth")
+    ap.add_argument("settings", nargs="+", help="NAME=VALUE[,NAME=VALUE...]; '-' = defaults")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/reroom_sweep"))
+    args = ap.parse_args()
+    reroom = Path(sys.executable).with_name("reroom")
+    for setting in args.settings:
+        pairs = [] if setting == "-" else [p for p in setting.split(",") if p]
+        d = sweep_dir(args.run, args.work, setting)
+        cmd = [str(reroom), "invert", str(d)]
+        for p in pairs:
+            cmd += ["--set", p]
+        t = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t
+        print(f"== {setting} (reroom invert {wall:.1f} s, rc {proc.returncode})", flush=True)
+        if proc.returncode != 0:
+            print(proc.stderr[-2000:])
+            continue
+        evaluate(d, d / "invert")
+
+
+if __name__ == "__main__":
+    main()

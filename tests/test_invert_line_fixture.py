@@ -1,0 +1,74 @@
+"""The open fraction of a line light's tube in its fixture (the line lights' shape prior)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.invert.basis import LineBasis
+from reroom.invert.line_fixture import cos2_quantiles, line_open_fraction, scan_fixture_caster
+from reroom.rays import RayCaster
+
+P0, P1, UP = np.array([0.0, 0.0, 0.0]), np.array([1.2, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+
+
+def _ceiling(height: float) -> RayCaster:
+    """A wide horizontal plane ``height`` above the tube's axis."""
+    plane = trimesh.Trimesh(
+        [[-5, -5, height], [5, -5, height], [5, 5, height], [-5, 5, height]],
+        [[0, 1, 2], [0, 2, 3]],
+    )
+    return RayCaster(plane, eps=1e-6)
+
+
+def test_a_bare_tube_is_open_everywhere() -> None:
+    basis = LineBasis(8, 3)
+    never = lambda p, d, tmax: np.zeros(len(p), bool)  # noqa: E731
+    np.testing.assert_array_equal(line_open_fraction(never, P0, P1, UP, 0.016, basis, 0.3), 1.0)
+
+
+def test_a_plane_above_the_tube_closes_the_steep_upward_bins() -> None:
+    # A thin tube under a plane 5 cm up, fixture reach 30 cm: a direction w is blocked
+    # iff w_z = cos(theta) cos(phi) > 0.05 / 0.3. Check every bin against a direct
+    # quadrature of that indicator (uniform in theta, cos^2-weighted in phi).
+    basis = LineBasis(16, 3)
+    h, reach = 0.05, 0.3
+    got = line_open_fraction(
+        _ceiling(h).occluded, P0, P1, UP, 1e-5, basis, reach, samples=16, angles=16
+    ).reshape(16, 3)
+    t_edges, p_edges = basis.theta_edges(), basis.phi_edges()
+    for k in range(16):
+        for j in range(3):
+            theta = np.linspace(t_edges[k], t_edges[k + 1], 401)[:, None]
+            phi = cos2_quantiles(p_edges[j], p_edges[j + 1], (np.arange(400) + 0.5) / 400)
+            expected = np.mean(np.cos(theta) * np.cos(phi)[None, :] <= h / reach)
+            assert got[k, j] == pytest.approx(expected, abs=0.06), (k, j)
+    assert np.all(got[:4, 0] == 0.0)  # steep upward: always blocked
+    assert np.all(got[8:] == 1.0)  # downward: never
+
+
+def test_scan_fixture_drops_the_tube_itself() -> None:
+    tube = trimesh.creation.cylinder(radius=0.016, segment=[P0, P1], sections=16)
+    housing = trimesh.creation.box(extents=(1.3, 0.16, 0.01))
+    housing.apply_translation((0.6, 0.0, 0.06))
+    far = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    far.apply_translation((0.6, 2.0, 0.0))
+    scan = trimesh.util.concatenate([tube, housing, far])
+    caster = scan_fixture_caster(scan.vertices, scan.faces, P0, P1, 0.016, 0.3)
+    assert caster.n_faces == len(housing.faces)  # neither the tube nor the far box
+    basis = LineBasis(8, 1)
+    frac = line_open_fraction(caster.occluded, P0, P1, UP, 0.016, basis, 0.3)
+    assert frac[0] < 0.01 and np.all(frac[4:] == 1.0)  # a little leaves by the ends
+    assert scan_fixture_caster(tube.vertices, tube.faces, P0, P1, 0.016, 0.3) is None
+
+
+def test_bad_lines_raise() -> None:
+    never = lambda p, d, tmax: np.zeros(len(p), bool)  # noqa: E731
+    basis = LineBasis(4, 1)
+    with pytest.raises(ValueError, match="zero length"):
+        line_open_fraction(never, P0, P0, UP, 0.01, basis, 0.3)
+    with pytest.raises(ValueError, match="parallel"):
+        line_open_fraction(never, P0, P1, [1.0, 0, 0], 0.01, basis, 0.3)
+    with pytest.raises(ValueError, match="radius must be positive"):
+        line_open_fraction(never, P0, P1, UP, 0.0, basis, 0.3)
