@@ -80,7 +80,14 @@ reads ``ground_truth/``, which the estimate never does.
 ``--shares NAME``
     ``reroom invert`` once, then per inclination bin of light ``NAME`` the receivers it
     lights most: how many, observed over modelled radiance, and every light's (and
-    ``E_ind``'s) share of their modelled irradiance.
+    ``E_ind``'s) share of their modelled irradiance. Then the receivers by ``NAME``'s
+    share of their light: observed over modelled per channel, and the colour of ``NAME``
+    that would close that gap with the rest of the model fixed (does the light's colour
+    follow the receivers it lights most?).
+``--drop-cluster NAME``
+    ``reroom invert`` once, then its problem re-solved without cluster ``NAME``'s
+    receivers, and with their radiance recoloured to the truth's chroma of that cluster:
+    the lights' power errors and the other albedos against the run's.
 ``--fix-at-truth NAME[,NAME]``
     ``reroom invert`` once, then its problem re-solved with those point or line lights
     fixed at their true profile (moved into ``E_ind``): the other lights' power errors
@@ -107,6 +114,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse
 
 from reroom.hdr.linearize import LUMA
 from reroom.invert.evaluate import evaluate_invert, hidden_as_unobserved, lights_from_truth
@@ -1168,6 +1176,33 @@ def bin_shares(scan: Path, work: Path, name: str) -> None:
             + " | ".join(f"{x:.2f}" for x in shares)
             + " |"
         )
+    # The light's colour: where it holds a large share, does the model miss in one channel?
+    share = (parts[name] @ lum) / np.maximum(irr @ lum, 1e-300)
+    print(
+        f"\nReceivers by `{name}`'s share of their modelled irradiance (luminance); observed "
+        "over modelled radiance per channel (sums), and the light's colour that would close "
+        "the gap there with the rest of the model fixed (relative to its solved colour, "
+        "normalised to luminance 1):\n"
+    )
+    print("| share | receivers | observed / modelled r/g/b | colour that fits them r/g/b |")
+    print("|---|---|---|---|")
+    for lo, hi in ((0.5, 1.01), (0.3, 0.5), (0.1, 0.3), (0.03, 0.1), (0.0, 0.03)):
+        rows = (share >= lo) & (share < hi)
+        if not rows.any():
+            continue
+        obs = prob.radiance[rows].sum(0)
+        mod = model[rows].sum(0)
+        # the light's part of the model there, per channel: rho / pi * its irradiance
+        own_part = (sol.albedo[prob.cluster[rows]] / np.pi * parts[name][rows]).sum(0)
+        scale = np.where(own_part > 0, 1 + (obs - mod) / np.maximum(own_part, 1e-300), np.nan)
+        scale = scale / float(scale @ lum) if np.all(np.isfinite(scale)) else scale
+        print(
+            f"| {lo:.2f}-{min(hi, 1):.2f} | {int(rows.sum())} | "
+            + "/".join(f"{x:.3f}" for x in obs / mod)
+            + " | "
+            + "/".join(f"{x:.3f}" for x in scale)
+            + " |"
+        )
 
 
 def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
@@ -1236,6 +1271,68 @@ def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
             print(f"| {name} | {_pct(errors[name])} | {_pct(new_err)} |")
 
 
+def drop_cluster(scan: Path, work: Path, name: str) -> None:
+    """The run's problem re-solved without one cluster's receivers, or with its colour moved.
+
+    ``reroom invert`` once (HDR radiance, the scan's lights); then the same eq. 5.7
+    problem solved (a) without the receivers of cluster ``name`` and (b) with their
+    observed radiance recoloured so that the run's albedo of that cluster gets the
+    truth's chroma (its luminance kept). Printed: every light's power error and the other
+    albedos, scaled from the run's evaluation by each re-solve's ratios. Does a light's
+    colour follow that cluster's albedo error?
+    """
+    out = work / "drop_cluster"
+    res = _invert(scan, out)
+    report = evaluate_invert(scan, out)
+    prob = res.problem
+    c = prob.cluster_names.index(name)
+    rows = prob.cluster == c
+    min_bin_support = InvertOptions(**INVERT_EXTRA).min_bin_support
+    base = _powers(res, min_bin_support)
+    errors = _power_errors(report)
+    truth = np.asarray(report["clusters"][name]["truth"], float)
+    solved = res.solve.albedo[c]
+    tilt = (truth / float(truth @ LUMA)) / (solved / float(solved @ LUMA))
+    radiance = prob.radiance.copy()
+    radiance[rows] /= tilt
+    transfer = scipy.sparse.csr_matrix(prob.transfer)
+    variants = {
+        f"without {name}": dataclasses.replace(
+            prob,
+            radiance=prob.radiance[~rows],
+            indirect=prob.indirect[~rows],
+            cluster=prob.cluster[~rows],
+            transfer=transfer[~rows],
+        ),
+        f"{name} recoloured x {'/'.join(f'{x:.4f}' for x in 1 / tilt)}": dataclasses.replace(
+            prob, radiance=radiance
+        ),
+    }
+    cols = list(variants)
+    print(f"\n| | the run | {' | '.join(cols)} |\n|---|---|" + "---|" * len(cols))
+    sols = {}
+    for label, p in variants.items():
+        sol = solve_lighting(p, SolveOptions())
+        sols[label] = (sol, _powers(dataclasses.replace(res, problem=p, solve=sol), 0.01))
+    for k, cname in enumerate(prob.cluster_names):
+        if cname not in CLUSTERS:
+            continue
+        run_err = np.asarray(report["clusters"][cname]["relative_error"])
+        cells = [
+            _pct((1 + run_err) * sol.albedo[k] / res.solve.albedo[k] - 1)
+            if np.all(np.isfinite(sol.albedo[k]))
+            else "-"
+            for sol, _ in sols.values()
+        ]
+        print(f"| {cname} | {_pct(run_err)} | {' | '.join(cells)} |")
+    for lname in base:
+        if lname in errors:
+            cells = [
+                _pct((1 + errors[lname]) * pw[lname] / base[lname] - 1) for _, pw in sols.values()
+            ]
+            print(f"| {lname} | {_pct(errors[lname])} | {' | '.join(cells)} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1287,6 +1384,7 @@ def main() -> None:
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--profile", default="", help="a light's solved profile against the truth")
     ap.add_argument("--shares", default="", help="who lights the receivers of a light's bins")
+    ap.add_argument("--drop-cluster", default="", help="re-solve without a cluster's receivers")
     ap.add_argument(
         "--fix-at-truth", default="", help="comma-separated point/line lights fixed at the truth"
     )
@@ -1333,6 +1431,8 @@ def main() -> None:
         profile_bins(args.scan, args.profile)
     if args.shares:
         bin_shares(args.scan, args.work, args.shares)
+    if args.drop_cluster:
+        drop_cluster(args.scan, args.work, args.drop_cluster)
     if args.fix_at_truth:
         fix_at_truth(args.scan, args.work, args.fix_at_truth.split(","))
 

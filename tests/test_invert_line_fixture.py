@@ -7,17 +7,23 @@ import pytest
 import trimesh
 
 from reroom.invert.basis import LineBasis
-from reroom.invert.line_fixture import cos2_quantiles, line_open_fraction, scan_fixture_caster
+from reroom.invert.line_fixture import (
+    MAX_INSIDE_FRACTION,
+    cos2_quantiles,
+    inside_fraction,
+    line_open_fraction,
+    scan_fixture_caster,
+)
 from reroom.rays import RayCaster
 
 P0, P1, UP = np.array([0.0, 0.0, 0.0]), np.array([1.2, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
 
 
 def _ceiling(height: float) -> RayCaster:
-    """A wide horizontal plane ``height`` above the tube's axis."""
+    """A wide horizontal plane ``height`` above the tube's axis, facing down at it."""
     plane = trimesh.Trimesh(
         [[-5, -5, height], [5, -5, height], [5, 5, height], [-5, 5, height]],
-        [[0, 1, 2], [0, 2, 3]],
+        [[0, 2, 1], [0, 3, 2]],
     )
     return RayCaster(plane, eps=1e-6)
 
@@ -72,3 +78,15 @@ def test_bad_lines_raise() -> None:
         line_open_fraction(never, P0, P1, [1.0, 0, 0], 0.01, basis, 0.3)
     with pytest.raises(ValueError, match="radius must be positive"):
         line_open_fraction(never, P0, P1, UP, 0.0, basis, 0.3)
+
+
+def test_a_tube_inside_a_closed_block_is_flagged() -> None:
+    # A fused scan can close a baffles' channel into a block with the tube half inside it.
+    block = trimesh.creation.box(extents=(1.4, 0.16, 0.12))
+    block.apply_translation((0.6, 0.0, 0.06))  # bottom face at z = 0: the tube's axis
+    caster = RayCaster(block, eps=1e-6)
+    inside = inside_fraction(caster, P0, P1, 0.016, 0.3)
+    assert 0.2 < inside < 0.6  # the upper half's rays leave the block through back faces
+    assert inside > MAX_INSIDE_FRACTION
+    # Under a housing (its underside faces the tube) every first hit is a front face.
+    assert inside_fraction(_ceiling(0.05), P0, P1, 0.016, 0.3) == 0.0

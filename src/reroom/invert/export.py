@@ -375,6 +375,9 @@ def _line_entry(
         # The shape prior: the fraction of the tube the scanned fixture leaves open.
         dist["open_fraction"] = np.asarray(info["open_fraction"], float).reshape(shape).tolist()
         dist["tube_radius"] = float(info["tube_radius"])
+    if "fixture_inside_fraction" in info:
+        # The prior was dropped: the scan does not resolve the fixture around the tube.
+        dist["fixture_inside_fraction"] = float(info["fixture_inside_fraction"])
     if support is not None:
         sup = np.asarray(support, float)
         dist["support"] = sup.reshape(shape).tolist()

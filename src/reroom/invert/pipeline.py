@@ -28,7 +28,12 @@ from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
 from reroom.invert.fill import DEFAULT_FILL_ALBEDO, bounce_fill
-from reroom.invert.line_fixture import line_open_fraction, scan_fixture_caster
+from reroom.invert.line_fixture import (
+    MAX_INSIDE_FRACTION,
+    inside_fraction,
+    line_open_fraction,
+    scan_fixture_caster,
+)
 from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -355,13 +360,16 @@ DEFAULT_TUBE_RADIUS = 0.013
 
 
 def _line_open_shape(
-    mesh, geometry: dict, basis: LineBasis, options: InvertOptions,
+    mesh, name: str, geometry: dict, basis: LineBasis, options: InvertOptions,
     notes: list[str],
 ) -> tuple[np.ndarray | None, dict]:  # fmt: skip
     """The open fraction of a line light's tube per bin, from the scanned fixture.
 
-    ``(None, {})`` when the prior is off; ``(None, {...})`` with a note when the scanned
-    fixture hides the tube in every direction (then the prior would say nothing).
+    ``(None, {})`` when the prior is off. ``(None, {...})`` with a note when the scan does
+    not resolve the fixture (rays from the tube leave through back faces:
+    :func:`~reroom.invert.line_fixture.inside_fraction`, e.g. a fused scan that closed the
+    baffles' channel around the tube) or hides the tube in every direction: the prior
+    would then pull the profile toward a wrong shape.
     """
     if options.line_shape_prior <= 0:
         return None, {}
@@ -370,6 +378,15 @@ def _line_open_shape(
     fixture = scan_fixture_caster(mesh.vertices, mesh.faces, p0, p1, radius, options.line_clearance)
     if fixture is None:
         open_frac = np.ones(basis.size)
+    elif (
+        inside := inside_fraction(fixture, p0, p1, radius, options.line_clearance)
+    ) > MAX_INSIDE_FRACTION:
+        notes.append(
+            f"the scan does not resolve the fixture of line light {name!r} "
+            f"({100 * inside:.0f} % of the rays from its tube leave through back faces: "
+            "the tube is partly inside the scanned geometry): no shape prior"
+        )
+        return None, {"fixture_inside_fraction": round(inside, 4)}
     else:
         open_frac = line_open_fraction(
             fixture.occluded, p0, p1, np.asarray(geometry["d_perp"], float), radius, basis,
@@ -377,7 +394,9 @@ def _line_open_shape(
         )  # fmt: skip
     info = {"open_fraction": np.round(open_frac, 4).tolist(), "tube_radius": radius}
     if not np.any(open_frac > 0):
-        notes.append("a line light's scanned fixture hides its tube everywhere: no shape prior")
+        notes.append(
+            f"the scanned fixture of line light {name!r} hides its tube everywhere: no shape prior"
+        )
         return None, info
     return open_frac, info
 
@@ -609,7 +628,7 @@ def run_invert(
                 }
             )
         elif light.type == "line":
-            shape, open_info = _line_open_shape(mesh, g, line_basis, options, notes)
+            shape, open_info = _line_open_shape(mesh, light.name, g, line_basis, options, notes)
             f = line_light_transfer(
                 caster,
                 p_recv,
