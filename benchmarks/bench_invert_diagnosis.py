@@ -1294,7 +1294,7 @@ def drop_cluster(scan: Path, work: Path, name: str) -> None:
     solved = res.solve.albedo[c]
     tilt = (truth / float(truth @ LUMA)) / (solved / float(solved @ LUMA))
     radiance = prob.radiance.copy()
-    radiance[rows] /= tilt
+    radiance[rows] *= tilt  # rho is proportional to the radiance: the truth's chroma
     transfer = scipy.sparse.csr_matrix(prob.transfer)
     variants = {
         f"without {name}": dataclasses.replace(
@@ -1304,7 +1304,7 @@ def drop_cluster(scan: Path, work: Path, name: str) -> None:
             cluster=prob.cluster[~rows],
             transfer=transfer[~rows],
         ),
-        f"{name} recoloured x {'/'.join(f'{x:.4f}' for x in 1 / tilt)}": dataclasses.replace(
+        f"{name} recoloured x {'/'.join(f'{x:.4f}' for x in tilt)}": dataclasses.replace(
             prob, radiance=radiance
         ),
     }
