@@ -90,3 +90,24 @@ def test_a_tube_inside_a_closed_block_is_flagged() -> None:
     assert inside > MAX_INSIDE_FRACTION
     # Under a housing (its underside faces the tube) every first hit is a front face.
     assert inside_fraction(_ceiling(0.05), P0, P1, 0.016, 0.3) == 0.0
+
+
+def test_the_pipeline_drops_the_prior_for_an_unresolved_fixture() -> None:
+    from reroom.invert.pipeline import InvertOptions, _line_open_shape
+
+    geometry = {"p0": P0, "p1": P1, "d_perp": UP, "radius": 0.016}
+    basis = LineBasis(8, 3)
+    housing = trimesh.Trimesh(  # an underside 5 cm above the tube, facing it
+        [[-0.1, -0.1, 0.05], [1.3, -0.1, 0.05], [1.3, 0.1, 0.05], [-0.1, 0.1, 0.05]],
+        [[0, 2, 1], [0, 3, 2]],
+    )
+    notes: list[str] = []
+    shape, info = _line_open_shape(housing, "tube", geometry, basis, InvertOptions(), notes)
+    assert shape is not None and not notes and len(info["open_fraction"]) == 8 * 3
+    block = trimesh.creation.box(extents=(1.4, 0.16, 0.12))
+    block.apply_translation((0.6, 0.0, 0.06))  # a fused channel: the tube half inside
+    shape, info = _line_open_shape(block, "tube", geometry, basis, InvertOptions(), notes)
+    assert shape is None and info["fixture_inside_fraction"] > MAX_INSIDE_FRACTION
+    assert "does not resolve the fixture of line light 'tube'" in notes[0]
+    off = InvertOptions(line_shape_prior=0.0)
+    assert _line_open_shape(housing, "tube", geometry, basis, off, []) == (None, {})

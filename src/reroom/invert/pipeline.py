@@ -102,8 +102,12 @@ class InvertOptions:
         (0: none). A tube is diffuse, so in a fixture its intensity is the bare tube's
         ``i0`` times the fraction of the tube the fixture leaves open in each direction
         (:mod:`reroom.invert.line_fixture`, computed on the scanned mesh within
-        ``line_clearance`` of the tube). The solve pulls the
-        profile toward ``i0 * open`` with ``i0`` free (``LightBlock.shape``).
+        ``line_clearance`` of the tube). The solve pulls the profile toward ``i0 *
+        open`` with ``i0`` free (``LightBlock.shape``). 1e5 (one bin's data curvature,
+        as ``line_phi_smooth``) measured best on `furnished` against 1e3-1e6: the tube's
+        distribution error 32 → 6 %, its luminance power +23 → −0.5 % (docs/invert.md,
+        "Session 17"). Dropped, with a note, for a tube whose fixture the scan does not
+        resolve (:func:`reroom.invert.line_fixture.inside_fraction`).
     line_fixture_samples : int
         Points on the tube per direction when integrating the open fraction.
     rays_per_receiver : int
