@@ -301,17 +301,23 @@ def test_exact_line_light_with_phi_bins_is_recovered(fold) -> None:
     assert np.abs(solve_lighting(flat, EXACT).albedo - albedo).max() > 1e-3
 
 
-def test_pair_weights_shape_the_fill_of_unseen_bins() -> None:
-    # Three bins of a chain, the middle one unseen: with the smoothness alone it is the
-    # weighted mean of its neighbours, (w1 a + w2 b) / (w1 + w2).
-    rng = np.random.default_rng(13)
-    n = 400
+def _bins_0_and_2_seen(n: int, bins: int, seed: int):
+    """Vertices of three clusters, half seeing bin 0 and half bin 2 of a ``bins``-bin light."""
+    rng = np.random.default_rng(seed)
     cluster = rng.integers(0, 3, n)
-    f = np.zeros((n, 3))
+    f = np.zeros((n, bins))
     f[: n // 2, 0] = rng.uniform(0.1, 1, n // 2)
     f[n // 2 :, 2] = rng.uniform(0.1, 1, n - n // 2)
     albedo = np.array([[0.7, 0.6, 0.5], [0.3, 0.3, 0.2], [0.8, 0.8, 0.8]])
     indirect = rng.uniform(0.1, 0.3, (n, 3))
+    return cluster, f, albedo, indirect
+
+
+def test_pair_weights_shape_the_fill_of_unseen_bins() -> None:
+    # Three bins of a chain, the middle one unseen: with the smoothness alone it is the
+    # weighted mean of its neighbours, (w1 a + w2 b) / (w1 + w2).
+    n = 400
+    cluster, f, albedo, indirect = _bins_0_and_2_seen(n, 3, seed=13)
     truth = np.array([[1.0], [0.0], [4.0]]) * np.ones(3)
     radiance = albedo[cluster] / np.pi * (indirect + f @ truth)
     for w, expected in (((1.0, 1.0), 2.5), ((3.0, 1.0), 1.75)):
@@ -353,14 +359,7 @@ def test_box_qp_matches_bvls() -> None:
 
 def _chain_problem(shape=None, shape_weight=0.0, seed=14):
     """Four bins of a monochrome light, bins 1 and 3 seen by no vertex; truth ``3 v``."""
-    rng = np.random.default_rng(seed)
-    n = 600
-    cluster = rng.integers(0, 3, n)
-    f = np.zeros((n, 4))
-    f[: n // 2, 0] = rng.uniform(0.1, 1, n // 2)
-    f[n // 2 :, 2] = rng.uniform(0.1, 1, n - n // 2)
-    albedo = np.array([[0.7, 0.6, 0.5], [0.3, 0.3, 0.2], [0.8, 0.8, 0.8]])
-    indirect = rng.uniform(0.1, 0.3, (n, 3))
+    cluster, f, albedo, indirect = _bins_0_and_2_seen(600, 4, seed)
     v = np.array([1.0, 0.5, 0.8, 0.1])
     color = np.array([1.0, 0.9, 0.7]) / np.linalg.norm([1.0, 0.9, 0.7])
     truth = 3.0 * v[:, None] * color
