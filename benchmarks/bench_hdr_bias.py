@@ -23,7 +23,7 @@ per channel, over the vertices of a band of true luminance; emitters (true label
 * Tables: (1) per band, with the share of clean samples clipped (level 255) per
   channel; (2) bands of the vertices that have clean samples against those seen only
   near image or depth edges (flagged samples), with the truth parts of the latter;
-  (3) per surface (true label); (4) within 1.5 m of each point light against the rest;
+  (3) per surface (true label); (4) within 1.5 m of each point or line light against the rest;
   (5) for vertices with no clipped sample, the mean of their samples against their
   median (Monte-Carlo noise of the path-traced frames is skewed, a sensor's is not);
   (6) with ``--render-frames``, those frames path-traced again at ``--render-spp`` by
@@ -87,6 +87,15 @@ def _band_rows(est, tru, key, sel, extra=None) -> list[str]:
     return rows
 
 
+def _distance_to_light(pos: np.ndarray, light: dict) -> np.ndarray:
+    """Metres from each point to a true point light, or to a line light's segment."""
+    if light["type"] == "point":
+        return np.linalg.norm(pos - np.asarray(light["position"], float), axis=1)
+    a, b = np.asarray(light["p0"], float), np.asarray(light["p1"], float)
+    t = np.clip(((pos - a) @ (b - a)) / float((b - a) @ (b - a)), 0.0, 1.0)
+    return np.linalg.norm(pos - (a + t[:, None] * (b - a)), axis=1)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("scan", type=Path)
@@ -139,7 +148,7 @@ def main() -> None:
     lut = response_lut("auto", scan.meta)
     caster = RayCaster(scan.mesh)
     normals = vertex_normals(scan.mesh)
-    lights = [x for x in gt["lights"] if x["type"] == "point"]
+    lights = [x for x in gt["lights"] if x["type"] in ("point", "line")]
     pos = np.asarray(verts.vertices, float)
     for sampling in args.sampling.split(","):
         with warnings.catch_warnings():
@@ -193,11 +202,13 @@ def main() -> None:
                 print(f"| {name} | {int(s.sum())} | {_ratio(est, tru, s)} |")
 
         if lights:
-            print("\n(4) within 1.5 m of each point light, and the rest\n")
+            print(
+                "\n(4) within 1.5 m of each point light (of a line light's segment), and the rest\n"
+            )
             print("| band | vertices | HDR / truth | where |\n|---|---|---|---|")
             near_any = np.zeros(len(pos), bool)
             for light in lights:
-                near = np.linalg.norm(pos - np.asarray(light["position"]), axis=1) < 1.5
+                near = _distance_to_light(pos, light) < 1.5
                 near_any |= near
                 for row in _band_rows(est, tru, key, base & near & (n_clean > 0)):
                     print(row[:-2] + f" | near {light['name']} |")
