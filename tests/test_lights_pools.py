@@ -48,3 +48,19 @@ def test_no_edge_no_place():
     assert bulb_from_pool_edge(ceiling, flat, body, top, CEILING_Z) is None
     # No rim under the pool.
     assert bulb_from_pool_edge(ceiling, lum, body[:5], top, CEILING_Z) is None
+
+
+def test_a_pool_right_behind_an_emitter_is_not_a_pool() -> None:
+    from scipy.spatial import cKDTree
+
+    from reroom.lights.pools import hugs_an_emitter
+
+    g = np.linspace(0.0, 0.6, 13)
+    xx, yy = np.meshgrid(g, g)
+    panel = np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, 2.68)], 1)
+    behind = panel + [0.0, 0.0, 0.02]  # the ceiling 2 cm above the panel
+    away = behind + [1.5, 0.0, 0.0]  # a real pool 1.5 m along the ceiling
+    emitters = cKDTree(panel)
+    assert hugs_an_emitter(behind, emitters)
+    assert not hugs_an_emitter(away, emitters)
+    assert not hugs_an_emitter(behind, None)

@@ -27,7 +27,12 @@ from reroom.lights.room import CEILING, FLOOR, OTHER, RoomModel
 if TYPE_CHECKING:
     from reroom.lights.detect import LightsOptions
 
-__all__ = ["MeshData", "bulb_from_pool_edge", "find_pools", "fit_circle"]
+__all__ = ["MeshData", "bulb_from_pool_edge", "find_pools", "fit_circle", "hugs_an_emitter"]
+
+#: Metres: pool vertices this close to a kept emitter's vertices are the emitter's own
+#: neighbourhood (e.g. the ceiling 2 cm behind a ceiling panel, which the frames'
+#: reprojection can paint with the panel's radiance), not a pool thrown from below.
+EMITTER_HALO_M = 0.05
 
 
 @dataclass
@@ -73,11 +78,24 @@ def find_pools(
     usable = md.observed & ~taken
     floor_median = max(_median(md.luminance, room.labels, FLOOR), 1e-12)
     ceiling = _lit_pools(md.luminance, usable, room.labels, CEILING, adjacency, opt.pool_factor)
+    emitters = cKDTree(md.vertices[taken]) if taken.any() else None
     for k, m in enumerate(ceiling):
         comp = md.describe(m)
         if comp.area < opt.pool_min_area:
             continue
         name = f"ceiling_pool{k}"
+        if hugs_an_emitter(md.vertices[m], emitters):
+            rejected.append(
+                Rejected(
+                    name,
+                    "ceiling pool",
+                    "bright ceiling right at a kept emitter (most of its vertices within "
+                    f"{100 * EMITTER_HALO_M:.0f} cm of it): the emitter's own surroundings, "
+                    "not a pool from a light below",
+                    evidence(comp, md.aligned, up, room),
+                )
+            )
+            continue
         proposal = _point_from_pool(comp, md.aligned, room, name, md.luminance, md.observed)
         ev = evidence(comp, md.aligned, up, room)
         if proposal is not None:
@@ -112,6 +130,22 @@ def find_pools(
             )
         )
     return proposals, rejected
+
+
+def hugs_an_emitter(
+    points: np.ndarray, emitters: cKDTree | None, radius: float = EMITTER_HALO_M
+) -> bool:
+    """Whether most of a pool's ``points`` lie within ``radius`` of a kept emitter's vertices.
+
+    On the 640x360 `furnished` scan the ceiling vertices 2 cm above the ceiling panel
+    (hidden behind it) took the panel's radiance in the reprojection and made a 0.6 x
+    0.6 m "pool" of the panel's shape; a point light was then proposed inside the table
+    under it. A pool thrown by a lamp below lies away from every emitter.
+    """
+    if emitters is None or len(points) == 0:
+        return False
+    dist, _ = emitters.query(np.asarray(points, float), distance_upper_bound=radius)
+    return bool(np.mean(np.isfinite(dist)) > 0.5)
 
 
 def _median(luminance: np.ndarray, labels: np.ndarray, label: int) -> float:
