@@ -62,6 +62,7 @@ from reroom.hdr.observe import (
 from reroom.hdr.reproject import VertexGroups, reproject_radiance
 from reroom.io.mesh import read_ply
 from reroom.rays import RayCaster
+from reroom.rays.geometry import segment_distance
 from reroom.scan import load_scan
 
 BANDS = [0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.8, np.inf]
@@ -91,9 +92,7 @@ def _distance_to_light(pos: np.ndarray, light: dict) -> np.ndarray:
     """Metres from each point to a true point light, or to a line light's segment."""
     if light["type"] == "point":
         return np.linalg.norm(pos - np.asarray(light["position"], float), axis=1)
-    a, b = np.asarray(light["p0"], float), np.asarray(light["p1"], float)
-    t = np.clip(((pos - a) @ (b - a)) / float((b - a) @ (b - a)), 0.0, 1.0)
-    return np.linalg.norm(pos - (a + t[:, None] * (b - a)), axis=1)
+    return segment_distance(pos, light["p0"], light["p1"])
 
 
 def main() -> None:

@@ -1313,7 +1313,10 @@ def drop_cluster(scan: Path, work: Path, name: str) -> None:
     sols = {}
     for label, p in variants.items():
         sol = solve_lighting(p, SolveOptions())
-        sols[label] = (sol, _powers(dataclasses.replace(res, problem=p, solve=sol), 0.01))
+        sols[label] = (
+            sol,
+            _powers(dataclasses.replace(res, problem=p, solve=sol), min_bin_support),
+        )
     for k, cname in enumerate(prob.cluster_names):
         if cname not in CLUSTERS:
             continue

@@ -78,6 +78,8 @@ def test_bad_lines_raise() -> None:
         line_open_fraction(never, P0, P1, [1.0, 0, 0], 0.01, basis, 0.3)
     with pytest.raises(ValueError, match="radius must be positive"):
         line_open_fraction(never, P0, P1, UP, 0.0, basis, 0.3)
+    with pytest.raises(ValueError, match="zero length"):
+        inside_fraction(_ceiling(0.05), P0, P0, 0.01, 0.3)
 
 
 def test_a_tube_inside_a_closed_block_is_flagged() -> None:

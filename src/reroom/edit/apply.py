@@ -53,11 +53,12 @@ import numpy as np
 import trimesh
 
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
-from reroom.edit.model import DEFAULT_MAX_DEPTH, segment_distance
+from reroom.edit.model import DEFAULT_MAX_DEPTH
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.jsonfile import read_json
 from reroom.io.mesh import read_ply, write_triangle_ply
+from reroom.rays.geometry import segment_distance
 
 __all__ = [
     "RoomModel",

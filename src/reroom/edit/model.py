@@ -46,6 +46,7 @@ from reroom.errors import ReroomError, ScanError
 from reroom.io.images import read_exr
 from reroom.io.jsonfile import read_json
 from reroom.io.mesh import read_ply, write_ply
+from reroom.rays.geometry import segment_distance
 
 __all__ = ["DEFAULT_MAX_DEPTH", "GLOW_REACH", "model_scene", "point_light_table"]
 
@@ -259,13 +260,6 @@ def model_scene(
         },
     }
     return scene
-
-
-def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of each point of ``p`` ``(N, 3)`` to the segment ``a``-``b``."""
-    ab = b - a
-    t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
 
 
 def _add_glows(

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 
 from reroom.invert.basis import LineBasis
 from reroom.rays import RayCaster
+from reroom.rays.geometry import segment_distance
 
 __all__ = [
     "MAX_INSIDE_FRACTION",
@@ -56,6 +57,15 @@ def cos2_quantiles(lo: float, hi: float, u: np.ndarray) -> np.ndarray:
     grid = np.linspace(lo, hi, 2049)
     cdf = prim(grid) - prim(np.asarray(lo))
     return np.interp(u * cdf[-1], cdf, grid)
+
+
+def _axis(p0: ArrayLike, p1: ArrayLike) -> tuple[np.ndarray, np.ndarray, float]:
+    """``p0``, the unit direction to ``p1`` and the length; ValueError if zero."""
+    a = np.asarray(p0, float).reshape(3)
+    length = float(np.linalg.norm(np.asarray(p1, float).reshape(3) - a))
+    if length == 0:
+        raise ValueError("line light has zero length")
+    return a, (np.asarray(p1, float).reshape(3) - a) / length, length
 
 
 def line_open_fraction(
@@ -113,14 +123,9 @@ def line_open_fraction(
     ValueError
         If the line has zero length, ``up`` is parallel to it, or ``radius <= 0``.
     """
-    p0 = np.asarray(p0, float).reshape(3)
-    p1 = np.asarray(p1, float).reshape(3)
-    length = float(np.linalg.norm(p1 - p0))
-    if length == 0:
-        raise ValueError("line light has zero length")
+    p0, dh, length = _axis(p0, p1)
     if not radius > 0:
         raise ValueError(f"tube radius must be positive, got {radius}")
-    dh = (p1 - p0) / length
     u_vec = np.asarray(up, float).reshape(3)
     u_vec = u_vec - (u_vec @ dh) * dh
     if np.linalg.norm(u_vec) < 1e-9:
@@ -194,11 +199,7 @@ def scan_fixture_caster(
     f = np.asarray(faces, np.int64)
     if len(v) == 0 or len(f) == 0:
         return None
-    a = np.asarray(p0, float).reshape(3)
-    d = np.asarray(p1, float).reshape(3) - a
-    length2 = float(d @ d)
-    s = np.clip(((v - a) @ d) / length2, 0.0, 1.0) if length2 > 0 else np.zeros(len(v))
-    dist = np.linalg.norm(v - (a + s[:, None] * d), axis=1)
+    dist = segment_distance(v, p0, p1)
     tube = dist < max(2.0 * radius, radius + 0.01)
     near = dist <= reach
     keep = near[f].any(axis=1) & ~tube[f].all(axis=1)
@@ -229,12 +230,7 @@ def inside_fraction(
     block's inside open. Needs consistently wound faces (outward normals), as a
     fused mesh's are.
     """
-    a = np.asarray(p0, float).reshape(3)
-    b = np.asarray(p1, float).reshape(3)
-    length = float(np.linalg.norm(b - a))
-    if length == 0:
-        raise ValueError("line light has zero length")
-    dh = (b - a) / length
+    a, dh, length = _axis(p0, p1)
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(rays, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -242,7 +238,7 @@ def inside_fraction(
     norm = np.linalg.norm(w_perp, axis=1, keepdims=True)
     ok = norm[:, 0] > 1e-6  # directions along the axis have no facing side
     d, w_perp = d[ok], w_perp[ok] / norm[ok]
-    origins = a + rng.random(len(d))[:, None] * (b - a) + float(radius) * w_perp
+    origins = a + (length * rng.random(len(d)))[:, None] * dh + float(radius) * w_perp
     hits = caster.intersect(origins, d, tmax=reach)
     back = hits.hit & (np.einsum("ij,ij->i", hits.normals, d) > 0)
     return float(back.mean()) if len(d) else 0.0

@@ -49,6 +49,7 @@ from reroom.invert.transfer import hemisphere_transfer, inset_points
 from reroom.invert.windows import WindowOpening
 from reroom.io.mesh import read_ply
 from reroom.rays import RayCaster
+from reroom.rays.geometry import segment_distance
 
 __all__ = ["InvertOptions", "InvertResult", "run_invert", "CLUSTER_LABELS"]
 
@@ -327,10 +328,7 @@ def _fixture_vertices(points: np.ndarray, lights: list, margin: float) -> np.nda
     for light in lights:
         g = light.geometry
         if light.type == "line":
-            p0, p1 = np.asarray(g["p0"], float), np.asarray(g["p1"], float)
-            d = p1 - p0
-            s = np.clip((points - p0) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
-            dist = np.linalg.norm(points - (p0 + s[:, None] * d), axis=1)
+            dist = segment_distance(points, g["p0"], g["p1"])
             near |= dist <= float(g.get("radius", 0.0)) + margin
         elif light.type == "point":
             near |= np.linalg.norm(points - np.asarray(g["position"], float), axis=1) <= margin
@@ -382,16 +380,15 @@ def _line_open_shape(
     fixture = scan_fixture_caster(mesh.vertices, mesh.faces, p0, p1, radius, options.line_clearance)
     if fixture is None:
         open_frac = np.ones(basis.size)
-    elif (
-        inside := inside_fraction(fixture, p0, p1, radius, options.line_clearance)
-    ) > MAX_INSIDE_FRACTION:
-        notes.append(
-            f"the scan does not resolve the fixture of line light {name!r} "
-            f"({100 * inside:.0f} % of the rays from its tube leave through back faces: "
-            "the tube is partly inside the scanned geometry): no shape prior"
-        )
-        return None, {"fixture_inside_fraction": round(inside, 4)}
     else:
+        inside = inside_fraction(fixture, p0, p1, radius, options.line_clearance)
+        if inside > MAX_INSIDE_FRACTION:
+            notes.append(
+                f"the scan does not resolve the fixture of line light {name!r} "
+                f"({100 * inside:.0f} % of the rays from its tube leave through back faces: "
+                "the tube is partly inside the scanned geometry): no shape prior"
+            )
+            return None, {"fixture_inside_fraction": round(inside, 4)}
         open_frac = line_open_fraction(
             fixture.occluded, p0, p1, np.asarray(geometry["d_perp"], float), radius, basis,
             options.line_clearance, samples=options.line_fixture_samples, seed=options.seed,

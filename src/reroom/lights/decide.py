@@ -207,9 +207,10 @@ def make_light(typ: str, comp: Component, ev: dict, up: np.ndarray, reason: str)
         radius = float(comp.extent[1] / 2)
         perp = up - (up @ d) * d
         perp /= max(np.linalg.norm(perp), 1e-12)
+        middle = _tube_axis_point(comp)
         geometry = {
-            "p0": _tube_axis_point(comp) - half,
-            "p1": _tube_axis_point(comp) + half,
+            "p0": middle - half,
+            "p1": middle + half,
             "d_perp": perp,
             "radius": radius,
         }
