@@ -363,9 +363,10 @@ def true_line_profile(
     samples, angles, phi_angles, fixture_radius, seed
         ``samples`` points on the tube per direction; ``fixture_radius = 0``: bare tube.
         ``phi_angles`` was 16 until session 17: light leaving a channel's open ends
-        changes fast with ``phi``, and with 16 the `furnished` tube's 60-90° bins
-        scattered 0.03-0.107 (luminance / k) from one ``theta`` bin to the next; 64 keeps
-        them within 0.046-0.07 (96: 0.046-0.065) for about 6 s per tube.
+        changes fast with ``phi``: in the `furnished` tube's 60-90° bins the largest
+        step from one ``theta`` bin to the next (of the bare tube's ``2 r L``) is 0.19
+        with 16, 0.06 with 64, 0.04 with 96, for 1.5-1.8 / 5.3-5.5 / 7.7-7.9 s per tube
+        (``benchmarks/bench_line_fixture.py``).
 
     Returns
     -------

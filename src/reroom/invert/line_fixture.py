@@ -109,9 +109,9 @@ def line_open_fraction(
         Metres: hits farther than this are not the fixture.
     samples, angles, phi_angles, seed
         Sampling (see above). Light leaving a channel through its open ends changes
-        fast with ``phi``: with 16 ``phi`` strata over 3 bins the large ``|phi|`` bins
-        scattered 0.04-0.27 on `furnished`'s tube; 48 (the default) keep them within
-        about 0.03 of each other.
+        fast with ``phi``: on `furnished`'s tube the largest step between neighbouring
+        large-``|phi|`` bins is 0.19 with 16 ``phi`` strata over 3 bins, 0.085 with 48
+        (the default), 0.07 with 96 (``benchmarks/bench_line_fixture.py``).
 
     Returns
     -------
