@@ -69,8 +69,9 @@ reads ``ground_truth/``, which the estimate never does.
     other seeds, every clustered vertex, the subset as solved before session 15 (each
     row counted once; also with ``smooth_lambda`` over the multiplicity), the counted
     subset without its rare rows, and the line's theta or phi smoothness pairs or the
-    window's scaled x10 / x100 (the line's up to x1e5), the point lights' x0.1 / x0.01. Errors per cluster and light, scaled from the run's own
-    evaluation by each variant's albedo and power ratios.
+    window's scaled x10 / x100 (the line's up to x1e5), the point lights' x0.1 / x0.01,
+    and the window's colours limited to rank 1 or 2. Errors per cluster and light,
+    scaled from the run's own evaluation by each variant's albedo and power ratios.
 ``--indirect-scale S[,S...]``
     The truth run's problem re-solved with ``E_ind`` scaled by each ``S``: which way an
     error in the indirect light moves the albedos and the lights.
@@ -92,6 +93,15 @@ reads ``ground_truth/``, which the estimate never does.
     ``reroom invert`` once, then its problem re-solved with those point or line lights
     fixed at their true profile (moved into ``E_ind``): the other lights' power errors
     and the albedos against the run's.
+``--per-light NAME``
+    The truth run (true radiance, true lights) split light by light at its receivers:
+    each true light path-traced alone (depth 2) and ``E_ind`` against the path tracer's
+    indirect light, binned by ``NAME``'s share of the path tracer's light there. Per bin
+    and light: its share, the model's irradiance at the true intensities over the path
+    tracer's (the light model's own error: basis, transfer), and the solved over the path
+    tracer's (what the solve made of it). With a window, the cube cells that send those
+    receivers most light, true against solved. Which term of the model, in which
+    channel, a light's solved colour or power absorbs.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -381,12 +391,36 @@ def _true_cluster_albedo(problem, solution, report: dict) -> np.ndarray:
     return solution.albedo / (1.0 + err)
 
 
+def _true_intensities(scan: Path, report: dict, sol, leaving: bool = False) -> dict:
+    """Each light's true intensities in the solve's basis, by name.
+
+    A window's cells from the true HDRI; any other light has its solved shape at its true
+    power (the shape error is reported separately): the bulb's power, or with
+    ``leaving`` the power leaving its fixture (a lamp's shade keeps part of its bulb's
+    light, which the model never sees).
+    """
+    from reroom.invert.evaluate import true_window_cells
+
+    gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
+    out: dict[str, np.ndarray] = {}
+    for e in report["lights"]:
+        solved = sol.intensities[e["name"]]
+        if e["type"] == "window":
+            win = next(x for x in gt["lights"] if x["name"] == e["truth"])
+            n = int(round(np.sqrt(solved.shape[0] / 6)))
+            out[e["name"]], _ = true_window_cells(win, scan / "ground_truth" / "scene", n=n)
+        else:
+            err = e.get("effective_power_relative_error") if leaving else None
+            err = e["power_relative_error"] if err is None else err
+            out[e["name"]] = solved / (1.0 + np.asarray(err))
+    return out
+
+
 def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> None:
     """How the truth run's model fits at the true parameters, and where it misses."""
     import scipy.sparse as sp
     import trimesh
 
-    from reroom.invert.evaluate import true_window_cells
     from reroom.invert.solve import indirect_weights
     from reroom.render.frames import probe_radiance
 
@@ -396,16 +430,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
     _, true_albedo, label = _truth(scan)
     f = sp.csr_matrix(prob.transfer)
     off = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])]).astype(int)
-    gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
-    true_int: dict[str, np.ndarray] = {}
-    for e in report["lights"]:
-        solved = sol.intensities[e["name"]]
-        if e["type"] == "window":
-            win = next(x for x in gt["lights"] if x["name"] == e["truth"])
-            n = int(round(np.sqrt(solved.shape[0] / 6)))
-            true_int[e["name"]], _ = true_window_cells(win, scan / "ground_truth" / "scene", n=n)
-        else:  # the solved shape at the true power (the shape error is reported separately)
-            true_int[e["name"]] = solved / (1.0 + np.asarray(e["power_relative_error"]))
+    true_int = _true_intensities(scan, report, sol)
     rho_true = _true_cluster_albedo(prob, sol, report)
     w = indirect_weights(prob.radiance, prob.indirect, solve.reweight_c or 10.0)
     scale = float(np.median(prob.radiance))
@@ -911,7 +936,8 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
     (every row counted once), also with ``smooth_lambda`` divided by the sampled rows'
     multiplicity; every clustered vertex; the counted subset without the rows kept as
     rare; and the line and window lights' smoothness pairs scaled (theta or phi pairs of
-    the line, all pairs of the window). Errors are the run's own ``evaluate_invert``
+    the line, all pairs of the window), and each window's colours limited to rank 1 or 2
+    (its cells a sum of that many single-colour copies). Errors are the run's own ``evaluate_invert``
     figures times each variant's ratio to the run: albedo ratio per cluster, power ratio
     per light (the powers ``scene.json`` would get, fills of poorly seen bins included).
     """
@@ -1002,6 +1028,40 @@ def resolve_variants(scan: Path, work: Path, solve: SolveOptions) -> None:
                 blocks.append(b)
             sol = solve_lighting(dataclasses.replace(prob, lights=blocks), solve)
             row(f"{kind} smoothness ({which} pairs) x{factor:g}", sol)
+    # Each window's colours constrained: its cells as a sum of `rank` monochrome copies
+    # (rank 1: one colour for every cell), merged back into the window's cells.
+    for rank in (1, 2):
+        sol = _solve_window_rank(prob, solve, rank)
+        if sol is not None:
+            row(f"window colours of rank {rank}", sol)
+
+
+def _solve_window_rank(prob, solve: SolveOptions, rank: int):
+    """``prob`` solved with each window split into ``rank`` monochrome copies of its
+    columns (one colour each), the copies summed back into the window's cells."""
+    f = scipy.sparse.csc_matrix(prob.transfer)
+    off = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])]).astype(int)
+    cols, blocks = [], []
+    for i, b in enumerate(prob.lights):
+        copies = rank if b.kind == "window" else 1
+        for k in range(copies):
+            cols.append(f[:, off[i] : off[i + 1]])
+            blocks.append(
+                dataclasses.replace(b, name=f"{b.name}#{k}", monochrome=True)
+                if b.kind == "window"
+                else b
+            )
+    if not any(b.kind == "window" for b in prob.lights):
+        return None
+    split = dataclasses.replace(prob, transfer=scipy.sparse.hstack(cols).tocsr(), lights=blocks)
+    sol = solve_lighting(split, solve)
+    merged = {}
+    for b in prob.lights:
+        if b.kind == "window":
+            merged[b.name] = sum(sol.intensities[f"{b.name}#{k}"] for k in range(rank))
+        else:
+            merged[b.name] = sol.intensities[b.name]
+    return dataclasses.replace(sol, intensities=merged)
 
 
 def render_consistency(scan: Path, work: Path, clearance: bool = True, n: int = 4000) -> None:
@@ -1336,6 +1396,115 @@ def drop_cluster(scan: Path, work: Path, name: str) -> None:
             print(f"| {lname} | {_pct(errors[lname])} | {' | '.join(cells)} |")
 
 
+def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
+    """The truth run's irradiance light by light at ``name``'s receivers (see the notes)."""
+    import copy
+
+    import trimesh
+
+    from reroom.render import mitsuba
+    from reroom.render.frames import probe_radiance
+    from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
+
+    res, src, out = _truth_problem(scan, work, SolveOptions())
+    prob, sol, rows = res.problem, res.solve, res.problem_vertices
+    report = evaluate_invert(src, out)
+    names = [b.name for b in prob.lights]
+    if name not in names:
+        raise SystemExit(f"--per-light: no true light {name!r} (lights: {', '.join(names)})")
+    _, true_albedo, _ = _truth(scan)
+    f = scipy.sparse.csr_matrix(prob.transfer)
+    off = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])]).astype(int)
+    scene_dir = scan / "ground_truth" / "scene"
+    true_int = _true_intensities(scan, report, sol, leaving=True)
+    model = {
+        b.name: np.asarray(f[:, off[i] : off[i + 1]] @ true_int[b.name])
+        for i, b in enumerate(prob.lights)
+    }
+    solved = {
+        b.name: np.asarray(f[:, off[i] : off[i + 1]] @ sol.intensities[b.name])
+        for i, b in enumerate(prob.lights)
+    }
+    mesh = read_ply(scan / "mesh.ply")
+    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    pts, nrm = np.asarray(mesh.vertices)[rows], np.asarray(tm.vertex_normals)[rows]
+    rho_v = np.maximum(true_albedo[rows], 1e-3)
+    desc0 = load_scene_description(scene_dir)
+    mi = mitsuba()
+    traced: dict[str, np.ndarray] = {}
+    for key in [*names, "direct", "all"]:
+        desc = copy.deepcopy(desc0)
+        if key in names:
+            for light in desc["lights"]:
+                light["on"] = light["name"] == key
+        if key != "all":
+            desc["integrator"] = {"type": "path", "max_depth": 2}
+        radiance, _ = probe_radiance(
+            mi.load_dict(mitsuba_scene_dict(desc, scene_dir)), pts, nrm, spp, seed=1
+        )
+        traced[key] = np.pi * radiance / rho_v
+    traced_ind = traced["all"] - traced["direct"]
+    lum = LUMA
+    share = (traced[name] @ lum) / np.maximum(traced["all"] @ lum, 1e-300)
+
+    def ratio(a: np.ndarray, b: np.ndarray) -> str:
+        if float(b.sum(0) @ lum) <= 1e-9 * float(traced["all"].sum(0) @ lum):
+            return "-"  # the light sends these receivers nothing, in truth
+        return "/".join(f"{x:.3f}" for x in a.sum(0) / np.maximum(b.sum(0), 1e-300))
+
+    print(
+        f"\nReceivers by `{name}`'s share of the path tracer's irradiance (luminance); per "
+        "light its share there, the model at the true intensities / path tracer and the "
+        "solved / path tracer (r/g/b sums):\n"
+    )
+    print(
+        "| share of `"
+        + name
+        + "` | receivers | light | its share | model at truth / traced | solved / traced |"
+    )
+    print("|---|---|---|---|---|---|")
+    bands = [(0.3, 1.01), (0.1, 0.3), (0.03, 0.1), (0.0, 0.03)]
+    for lo, hi in bands:
+        sel = (share >= lo) & (share < hi)
+        if not sel.any():
+            continue
+        total = float((traced["all"][sel] @ lum).sum())
+        for n in names:
+            sh = float((traced[n][sel] @ lum).sum()) / total
+            print(
+                f"| {lo:.2f}-{min(hi, 1):.2f} | {int(sel.sum())} | {n} | {sh:.3f} | "
+                f"{ratio(model[n][sel], traced[n][sel])} | {ratio(solved[n][sel], traced[n][sel])} |"
+            )
+        sh = float((traced_ind[sel] @ lum).sum()) / total
+        print(
+            f"| {lo:.2f}-{min(hi, 1):.2f} | {int(sel.sum())} | E_ind | {sh:.3f} | "
+            f"{ratio(prob.indirect[sel], traced_ind[sel])} | (fixed) |"
+        )
+    for i, b in enumerate(prob.lights):
+        if b.kind != "window":
+            continue
+        sel = (share >= 0.1) & (share < 0.3)
+        if not sel.any():
+            continue
+        weight = np.asarray(f[:, off[i] : off[i + 1]][np.flatnonzero(sel)].sum(axis=0)).ravel()
+        t, s = true_int[b.name], sol.intensities[b.name]
+        sent = weight[:, None] * t
+        order = np.argsort(-(sent @ lum))[:8]
+        print(
+            f"\n`{b.name}`'s cells that send the 0.10-0.30 band most light (fraction of the "
+            "window's light there, true and solved r/g/b):\n"
+        )
+        print("| cell | fraction | true | solved | solved / true |\n|---|---|---|---|---|")
+        for c in order:
+            print(
+                f"| {c} | {float(sent[c] @ lum) / float(sent.sum(0) @ lum):.3f} | "
+                + " | ".join("/".join(f"{x:.3f}" for x in v) for v in (t[c], s[c]))
+                + " | "
+                + "/".join(f"{x:.2f}" for x in s[c] / np.maximum(t[c], 1e-12))
+                + " |"
+            )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1387,6 +1556,9 @@ def main() -> None:
     ap.add_argument("--fireflies", type=int, default=None, help="input frame to render")
     ap.add_argument("--profile", default="", help="a light's solved profile against the truth")
     ap.add_argument("--shares", default="", help="who lights the receivers of a light's bins")
+    ap.add_argument(
+        "--per-light", default="", help="the truth run light by light at a light's receivers"
+    )
     ap.add_argument("--drop-cluster", default="", help="re-solve without a cluster's receivers")
     ap.add_argument(
         "--fix-at-truth", default="", help="comma-separated point/line lights fixed at the truth"
@@ -1434,6 +1606,8 @@ def main() -> None:
         profile_bins(args.scan, args.profile)
     if args.shares:
         bin_shares(args.scan, args.work, args.shares)
+    if args.per_light:
+        per_light(args.scan, args.work, args.per_light)
     if args.drop_cluster:
         drop_cluster(args.scan, args.work, args.drop_cluster)
     if args.fix_at_truth:

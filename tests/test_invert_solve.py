@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -402,4 +404,59 @@ def test_shape_prior_is_validated() -> None:
         solve_lighting(problem)
     problem, _, _ = _chain_problem(np.ones(4), -1.0)
     with pytest.raises(SolveError, match="shape_weight >= 0"):
+        solve_lighting(problem)
+
+
+def _window_with_prior(measured: np.ndarray, weight: np.ndarray, seed: int = 3):
+    problem, truth = synthetic_problem(1500, lights=("window",), seed=seed)
+    problem.lights[0] = dataclasses.replace(problem.lights[0], prior=measured, prior_weight=weight)
+    return problem, truth
+
+
+@pytest.mark.parametrize("method", ["alternating", "joint"])
+def test_measured_prior_sets_the_cells_no_vertex_sees(method) -> None:
+    opts = SolveOptions(
+        method=method, smooth_lambda=1e-6, huber_delta=None, reweight_c=None, tolerance=1e-12
+    )
+    _, truth = synthetic_problem(1500, lights=("window",), seed=3)
+    true = truth.intensities["window"]
+    unseen = ~truth.seen["window"]
+    assert unseen.sum() > 20
+    # Measured only where no vertex sees: those cells take the measurement, not the
+    # harmonic fill, and the seen cells stay the data's.
+    measured = np.where(unseen[:, None], true, np.nan)
+    problem, _ = _window_with_prior(measured, np.where(unseen, 1e4, 0.0))
+    got = solve_lighting(problem, opts).intensities["window"]
+    np.testing.assert_allclose(got[unseen], true[unseen], rtol=1e-3)
+    scale = np.abs(true).max()
+    assert np.abs(got[~unseen] - true[~unseen]).max() < 2e-3 * scale
+    plain = solve_lighting(synthetic_problem(1500, lights=("window",), seed=3)[0], opts)
+    assert np.abs(plain.intensities["window"][unseen] - true[unseen]).max() > 0.05 * scale
+    # A wrong measurement of a seen cell with a small weight leaves the data in charge.
+    wrong = np.full_like(true, np.nan)
+    k = int(np.flatnonzero(~unseen)[0])
+    wrong[k] = 3.0 * true[k]
+    weight = np.zeros(len(true))
+    weight[k] = 1e-3
+    problem, _ = _window_with_prior(wrong, weight)
+    got = solve_lighting(problem, opts).intensities["window"]
+    np.testing.assert_allclose(got[k], true[k], rtol=2e-3)
+
+
+def test_measured_prior_is_validated() -> None:
+    n = synthetic_problem(200, lights=("window",), seed=3)[0].lights[0].size
+    problem, _ = _window_with_prior(np.ones((n, 3)), -np.ones(n))
+    with pytest.raises(SolveError, match="one finite prior weight >= 0 per element"):
+        solve_lighting(problem)
+    problem, _ = _window_with_prior(np.ones((n - 1, 3)), np.ones(n))
+    with pytest.raises(SolveError, match=r"needs a prior of shape"):
+        solve_lighting(problem)
+    problem, _ = _window_with_prior(np.full((n, 3), np.nan), np.ones(n))
+    with pytest.raises(SolveError, match="must be finite, >= 0"):
+        solve_lighting(problem)
+    problem, _, _ = _chain_problem()
+    problem.lights[0] = dataclasses.replace(
+        problem.lights[0], prior=np.ones((4, 3)), prior_weight=np.ones(4)
+    )
+    with pytest.raises(SolveError, match="needs a chromatic light"):
         solve_lighting(problem)

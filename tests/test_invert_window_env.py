@@ -14,6 +14,7 @@ from reroom.invert.basis import CubemapBasis
 from reroom.invert.export import latlong_from_cubemap, light_entries
 from reroom.invert.window_env import (
     WindowPhotos,
+    cell_means,
     fill_gaps,
     latlong_directions,
     latlong_solid_angles,
@@ -286,3 +287,65 @@ def test_frames_that_cannot_see_a_window_are_skipped_before_casting():
     assert not _may_see_windows(away, [WINDOW])
     assert _may_see_windows(close, [WINDOW])
     assert not _may_see_windows(towards, [])
+
+
+def test_cell_means_use_clean_texels_only(window_scan):
+    root, env = window_scan
+    basis = CubemapBasis(4)
+    (photos,), _ = observe_windows(root, _room(), [WINDOW], height=H)
+    means, fraction = cell_means(photos, basis, min_texels=4, min_samples=16)
+    ok = np.isfinite(means).all(axis=1)
+    assert ok.sum() >= 2 and np.all(fraction[ok] > 0) and np.all(fraction[ok] <= 1)
+    assert np.all(fraction[~ok] == 0)
+    # Each mean is the solid-angle weighted environment over the cell's clean texels.
+    cell = basis.cell_of(latlong_directions(H).reshape(-1, 3))
+    a = latlong_solid_angles(H).ravel()
+    clean = ((photos.count > 0) & (photos.saturated == 0)).ravel()
+    for j in np.flatnonzero(ok):
+        m = clean & (cell == j)
+        want = (a[m, None] * env.reshape(-1, 3)[m]).sum(0) / a[m].sum()
+        np.testing.assert_allclose(means[j], want, rtol=0.03)
+        assert fraction[j] == pytest.approx(a[m].sum() / a[cell == j].sum())
+    # No cell with a saturated sample has a mean: its clean texels are its darker part.
+    sat_cells = np.unique(cell[photos.saturated.ravel() > 0])
+    assert len(sat_cells) and not ok[sat_cells].any()
+    # One saturated sample in a clean cell takes the whole cell out.
+    spoiled = photos.saturated.copy()
+    flat = int(np.flatnonzero(clean & ok[cell])[0])
+    r, c = divmod(flat, 2 * H)
+    spoiled[r, c] = 1
+    j = int(cell[flat])
+    _, frac2 = cell_means(
+        WindowPhotos(photos.mean, photos.count, photos.bound, spoiled),
+        basis,
+        min_texels=4,
+        min_samples=16,
+    )
+    assert fraction[j] > 0 and frac2[j] == 0
+    # Too few clean texels: no mean.
+    none, zero = cell_means(photos, basis, min_texels=10_000)
+    assert np.isnan(none).all() and np.all(zero == 0)
+
+
+def test_pipeline_builds_the_window_prior_from_the_photos(window_scan, tmp_path):
+    from reroom.invert.pipeline import InvertOptions, _window_photo_priors
+
+    root, env = window_scan
+    basis = CubemapBasis(4)
+    notes: list[str] = []
+    off = _window_photo_priors(root, _room(), None, [WINDOW], basis, InvertOptions(), notes)
+    assert off == [(None, None, {})]
+    opts = InvertOptions(window_photo_prior=1e5)
+    ((prior, weight, info),) = _window_photo_priors(
+        root, _room(), None, [WINDOW], basis, opts, notes
+    )
+    seen = weight > 0
+    assert info["photo_prior"]["cells"] == int(seen.sum()) > 0
+    assert np.all(weight <= 1e5) and np.all(np.isfinite(prior))
+    np.testing.assert_allclose(prior[seen], _cell_means(env, basis)[seen], rtol=0.35)
+    # Photos that cannot be read back: no prior, and a note that says why.
+    notes.clear()
+    ((prior, weight, info),) = _window_photo_priors(
+        tmp_path, _room(), None, [WINDOW], basis, opts, notes
+    )
+    assert prior is None and weight is None and "window photo prior: not used" in notes[0]

@@ -507,6 +507,8 @@ def light_entries(
                 e["distribution"]["well_seen"] = [
                     bool(top > 0 and x >= min_bin_support * top) for x in support
                 ]
+            if "photo_prior" in info:  # InvertOptions.window_photo_prior
+                e["distribution"]["photo_prior"] = info["photo_prior"]
             e["power"] = window_power(cells, basis, n_in, _window_area(g)).tolist()
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)

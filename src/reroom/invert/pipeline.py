@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from reroom.errors import ScanError
+from reroom.errors import ReroomError, ScanError
 from reroom.hdr.observe import vertex_normals
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
@@ -172,6 +172,11 @@ class InvertOptions:
         cube cell, the detail of the pixels that looked out through the opening, with
         the cell's solved mean kept (:mod:`reroom.invert.window_env`); the plain cells
         stay in ``window_<name>_cells.exr``. False: the cells only.
+    window_photo_prior : float
+        Weight of the photos' view through each window as a prior on its cube cells,
+        relative to the cells' smoothness weight ``lambda_l`` and scaled by the share of
+        each cell the photos see cleanly (never saturated;
+        :func:`reroom.invert.window_env.cell_means`); 0: none.
     refine_points : bool
         After the first solve, move each point light to where its share of the solved
         lighting fits the photos best (:mod:`reroom.invert.refine_points`), then solve
@@ -234,6 +239,7 @@ class InvertOptions:
     textures: bool = True
     texel: float | None = None
     window_photos: bool = True
+    window_photo_prior: float = 0.0
     refine_points: bool = True
     refine_max_shift: float = 0.3
     refine_max_receivers: int = 20000
@@ -400,6 +406,46 @@ def _line_open_shape(
         )
         return None, info
     return open_frac, info
+
+
+def _window_photo_priors(
+    scan: Path, mesh, caster, openings: list, basis, options: InvertOptions, notes: list[str]
+) -> list[tuple[np.ndarray | None, np.ndarray | None, dict]]:
+    """Per window: the photos' clean view of its cells as a prior ``(values, weights, info)``.
+
+    ``(None, None, {})`` for each window when ``window_photo_prior`` is 0; with a note
+    (and no prior) when the photos cannot be read back (e.g. no ``hdr/exposures.json``).
+    """
+    none: list[tuple[np.ndarray | None, np.ndarray | None, dict]] = [
+        (None, None, {}) for _ in openings
+    ]
+    if options.window_photo_prior <= 0 or not openings:
+        return none
+    from reroom.invert.window_env import cell_means, observe_windows
+
+    try:
+        photos, stats = observe_windows(scan, mesh, openings, caster=caster)
+    except (ReroomError, OSError, ValueError) as exc:
+        notes.append(f"window photo prior: not used ({exc})")
+        return none
+    notes.extend(stats["notes"])
+    out = []
+    for ph in photos:
+        means, fraction = cell_means(ph, basis)
+        weight = options.window_photo_prior * fraction
+        info = {
+            "photo_prior": {
+                "weight": options.window_photo_prior,
+                "cells": int(np.count_nonzero(weight > 0)),
+                "mean_fraction_seen": round(float(fraction[weight > 0].mean()), 4)
+                if np.any(weight > 0)
+                else 0.0,
+            }
+        }
+        out.append(
+            (np.nan_to_num(means), weight, info) if np.any(weight > 0) else (None, None, info)
+        )
+    return out
 
 
 def emitter_classes(
@@ -585,8 +631,20 @@ def run_invert(
         )
         columns.append(f_area[:, None])
         info.append({"name": light.name, "type": "area", "geometry": light.geometry})
+    priors = _window_photo_priors(scan, mesh, caster, openings, basis, options, notes)
     for k, light in enumerate(wins):
-        blocks.append(LightBlock(light.name, "window", basis.size, False, basis.adjacency()))
+        prior, prior_weight, prior_info = priors[k]
+        blocks.append(
+            LightBlock(
+                light.name,
+                "window",
+                basis.size,
+                False,
+                basis.adjacency(),
+                prior=prior,
+                prior_weight=prior_weight,
+            )
+        )
         if options.window_samples > 0:
             # Integrated over the opening, as the area lights (reroom.invert.portal); the
             # hemisphere rays still decide which directions carry indirect light.
@@ -605,7 +663,9 @@ def run_invert(
             )
         else:
             columns.append(hemi.distant[:, k, :])
-        info.append({"name": light.name, "type": "window", "geometry": light.geometry})
+        info.append(
+            {"name": light.name, "type": "window", "geometry": light.geometry, **prior_info}
+        )
     for light in light_list:
         g = light.geometry
         if light.type == "point":
@@ -843,7 +903,6 @@ def _surface_textures(
 ):
     """The photo textures of the floor, ceiling and walls (None, with a note, when the
     scan lacks what they need)."""
-    from reroom.errors import ReroomError
     from reroom.invert.solve import model_irradiance
     from reroom.invert.textures import photo_textures
     from reroom.io.jsonfile import read_json

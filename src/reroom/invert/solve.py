@@ -22,6 +22,9 @@ A light with a prior shape ``v`` (``LightBlock.shape``, e.g. the part of a tube 
 scanned fixture leaves open) adds ``shape_weight * lambda_l * ||(1 - u u^T) I_l||^2``
 with ``u = v / ||v||``: the part of ``I_l`` that is no multiple of ``v``, whatever the
 scale, so the prior fixes the profile's shape and leaves its intensity to the data.
+A chromatic light with measured values ``t`` of some elements (``LightBlock.prior``,
+e.g. a window's cells where the photos see through it unsaturated) adds
+``lambda_l sum_j prior_weight_j ||I_lj - t_j||^2``.
 
 Monochromatic lights (points and lines) are parametrised *exactly* as
 ``I_l^c = col_lc * p_l`` with ``||col_l|| = 1`` (instead of the thesis's penalty
@@ -110,6 +113,13 @@ class LightBlock:
     shape_weight : float
         Weight of that prior, relative to the smoothness weight ``lambda_l``
         (0: no prior).
+    prior : ndarray, shape (size, 3), optional
+        Measured intensities of some basis elements (absolute units; rows without a
+        measurement are ignored, NaN allowed there). Chromatic lights only: the solve
+        adds ``lambda_l * prior_weight[j] * ||I_j - prior[j]||^2`` per element. A window
+        uses the photos' unsaturated view through it (:mod:`reroom.invert.window_env`).
+    prior_weight : ndarray, shape (size,), optional
+        Weight of each element's measurement relative to ``lambda_l`` (0: none).
     """
 
     name: str
@@ -120,6 +130,8 @@ class LightBlock:
     adjacency_weights: np.ndarray | None = None
     shape: np.ndarray | None = None
     shape_weight: float = 0.0
+    prior: np.ndarray | None = None
+    prior_weight: np.ndarray | None = None
 
 
 @dataclass
@@ -177,6 +189,8 @@ class InverseProblem:
                     )
                 if not np.isfinite(light.shape_weight) or light.shape_weight < 0:
                     raise SolveError(f"light {light.name!r} needs a shape_weight >= 0")
+            if light.prior_weight is not None:
+                _validate_prior(light)
             if light.adjacency is not None and len(light.adjacency):
                 adj = np.asarray(light.adjacency)
                 if adj.ndim != 2 or adj.shape[1] != 2 or adj.min() < 0 or adj.max() >= light.size:
@@ -192,6 +206,19 @@ class InverseProblem:
                 raise SolveError(f"{name} has non-finite values")
         if n and (self.cluster.min() < 0 or self.cluster.max() >= len(self.cluster_names)):
             raise SolveError("cluster ids out of range of cluster_names")
+
+
+def _validate_prior(light: LightBlock) -> None:
+    wt = np.asarray(light.prior_weight, float)
+    if light.monochrome:
+        raise SolveError(f"light {light.name!r}: a measured prior needs a chromatic light")
+    if wt.shape != (light.size,) or not np.all(np.isfinite(wt)) or wt.min() < 0:
+        raise SolveError(f"light {light.name!r} needs one finite prior weight >= 0 per element")
+    if light.prior is None or np.shape(light.prior) != (light.size, 3):
+        raise SolveError(f"light {light.name!r} needs a prior of shape ({light.size}, 3)")
+    t = np.asarray(light.prior, float)[wt > 0]
+    if not np.all(np.isfinite(t)) or (t.size and t.min() < 0):
+        raise SolveError(f"light {light.name!r}: its weighted prior values must be finite, >= 0")
 
 
 @dataclass
@@ -356,6 +383,9 @@ class _Layout:
     mono_lights: list[LightBlock]
     smooth_chrom: sp.csr_matrix  # rows sqrt(lambda) (e_i - e_j) over chrom columns
     smooth_mono: sp.csr_matrix  # same over mono columns
+    # Right-hand side of smooth_chrom's rows per channel (relative units): 0 for the
+    # smoothness and shape rows, sqrt(lambda w) t for a measured prior's.
+    chrom_rhs: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def n_chrom(self) -> int:
@@ -367,9 +397,16 @@ class _Layout:
 
 
 def _smoothness_rows(
-    lights: list[LightBlock], offsets: list[int], local: dict[int, int], n_cols: int, lam: dict
-) -> sp.csr_matrix:
+    lights: list[LightBlock],
+    offsets: list[int],
+    local: dict[int, int],
+    n_cols: int,
+    lam: dict,
+    scale: float = 1.0,
+) -> tuple[sp.csr_matrix, np.ndarray]:
+    """The regularisation rows ``R x - b`` over some columns, and ``b`` (rows, 3)."""
     rows, cols, vals = [], [], []
+    rhs: list[np.ndarray] = []
     r = 0
     for li, light in enumerate(lights):
         if light.adjacency is None or len(light.adjacency) == 0 or lam.get(light.name, 0) <= 0:
@@ -405,10 +442,25 @@ def _smoothness_rows(
             cols += local_cols[nz].tolist()
             vals += row[nz].tolist()
             r += 1
-    return sp.csr_matrix((vals, (rows, cols)), shape=(r, n_cols))
+    rhs.append(np.zeros((r, 3)))
+    for li, light in enumerate(lights):
+        if light.prior_weight is None or lam.get(light.name, 0) <= 0:
+            continue
+        wt = np.asarray(light.prior_weight, float)
+        t = np.asarray(light.prior, float)
+        for j in np.flatnonzero(wt > 0):
+            a = np.sqrt(lam[light.name] * wt[j])
+            rows.append(r)
+            cols.append(local[offsets[li] + int(j)])
+            vals.append(a)
+            rhs.append(a * t[j][None, :] / scale)  # the solve's relative units
+            r += 1
+    return sp.csr_matrix((vals, (rows, cols)), shape=(r, n_cols)), np.concatenate(rhs)
 
 
-def _layout(lights: list[LightBlock], col_norm2: np.ndarray, smooth_lambda: float) -> _Layout:
+def _layout(
+    lights: list[LightBlock], col_norm2: np.ndarray, smooth_lambda: float, scale: float = 1.0
+) -> _Layout:
     offsets = np.concatenate([[0], np.cumsum([light.size for light in lights])]).astype(int)
     chrom, mono, mono_of = [], [], []
     mono_lights: list[LightBlock] = []
@@ -429,13 +481,18 @@ def _layout(lights: list[LightBlock], col_norm2: np.ndarray, smooth_lambda: floa
     chrom_lights = [light for light in lights if not light.monochrome]
     chrom_offsets = [int(offsets[i]) for i, lt in enumerate(lights) if not lt.monochrome]
     mono_offsets = [int(offsets[i]) for i, lt in enumerate(lights) if lt.monochrome]
+    smooth_chrom, chrom_rhs = _smoothness_rows(
+        chrom_lights, chrom_offsets, chrom_local, len(chrom), lam, scale
+    )
+    smooth_mono, _ = _smoothness_rows(mono_lights, mono_offsets, mono_local, len(mono), lam)
     return _Layout(
         chrom_cols=np.asarray(chrom, dtype=int),
         mono_cols=np.asarray(mono, dtype=int),
         mono_light_of_col=np.asarray(mono_of, dtype=int),
         mono_lights=mono_lights,
-        smooth_chrom=_smoothness_rows(chrom_lights, chrom_offsets, chrom_local, len(chrom), lam),
-        smooth_mono=_smoothness_rows(mono_lights, mono_offsets, mono_local, len(mono), lam),
+        smooth_chrom=smooth_chrom,
+        smooth_mono=smooth_mono,
+        chrom_rhs=chrom_rhs,
     )
 
 
@@ -533,7 +590,7 @@ class _Data:
             h = np.where(a <= d, 1.0, d / np.maximum(a, 1e-300))
         smooth = 0.0
         if lay.smooth_chrom.shape[0]:
-            smooth += float(np.sum((lay.smooth_chrom @ st.chrom) ** 2))
+            smooth += float(np.sum((lay.smooth_chrom @ st.chrom - lay.chrom_rhs) ** 2))
         if lay.smooth_mono.shape[0]:
             smooth += float(np.sum((lay.smooth_mono @ st.profile) ** 2))
         return data + smooth, h
@@ -562,7 +619,9 @@ def _light_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> No
         # uncoupled channels: one small NNLS per channel
         for c in range(3):
             g = (f_chrom.T @ f_chrom.multiply(scale[:, c : c + 1])).toarray() + s_c
-            rhs = f_chrom.T @ (scale[:, c] * target[:, c])
+            rhs = (
+                f_chrom.T @ (scale[:, c] * target[:, c]) + lay.smooth_chrom.T @ lay.chrom_rhs[:, c]
+            )
             st.chrom[:, c] = _nnls_normal(g, rhs)
         return
     s_m = (lay.smooth_mono.T @ lay.smooth_mono).toarray()
@@ -582,6 +641,8 @@ def _light_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> No
         mm = (f_mono.T @ fm_w).toarray()
         gram[mono, mono] += mm * np.outer(col_of[:, c], col_of[:, c])
         rhs[blk] = f_chrom.T @ (scale[:, c] * target[:, c])
+        if kc:
+            rhs[blk] += lay.smooth_chrom.T @ lay.chrom_rhs[:, c]
         rhs[mono] += col_of[:, c] * (f_mono.T @ (scale[:, c] * target[:, c]))
     gram[mono, mono] += s_m
     x = _nnls_normal(gram, rhs)
@@ -608,6 +669,8 @@ def _color_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> No
         g = (design.T @ design.multiply(scale[:, c : c + 1])).toarray()
         g[:kc, :kc] += s_c
         rhs = design.T @ (scale[:, c] * target[:, c])
+        if kc:
+            rhs[:kc] += lay.smooth_chrom.T @ lay.chrom_rhs[:, c]
         x = _nnls_normal(g, rhs)
         st.chrom[:, c] = x[:kc]
         new_color[:, c] = x[kc:]
@@ -819,7 +882,7 @@ def _solve_joint(
     def fun(x: np.ndarray) -> np.ndarray:
         _, chrom, prof, _, _, _, irr, rv = parts(x)
         r = (sqw * (rv * irr - data.L)).T.ravel()
-        smooth = [(sc @ chrom).T.ravel(), sm @ prof]
+        smooth = [(sc @ chrom - lay.chrom_rhs).T.ravel(), sm @ prof]
         return np.concatenate([r, *smooth])
 
     vrows = np.arange(n)
@@ -1042,7 +1105,7 @@ def solve_lighting(
         )
     data = _Data(problem, rows, options, multiplicity=multiplicity)
     col_norm2 = np.asarray(data.F.multiply(data.F).T @ (data.w * data.m).mean(axis=1)).ravel()
-    lay = _layout(problem.lights, col_norm2, options.smooth_lambda)
+    lay = _layout(problem.lights, col_norm2, options.smooth_lambda, data.scale)
     for li, light in enumerate(problem.lights):
         start = sum(lt.size for lt in problem.lights[:li])
         seen = col_norm2[start : start + light.size] > 0

@@ -35,6 +35,9 @@ So every cell keeps its solved mean channel by channel: the power, the light the
 receives at the cube map's resolution and the albedos solved with it stay consistent;
 only where the light comes from *within* a cell changes, and the directions no photo saw
 look as before.
+
+:func:`cell_means` gives the solve the photos' radiance of the cells they see cleanly
+(no saturated sample in the cell), for ``InvertOptions.window_photo_prior``.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from reroom.invert.windows import WindowOpening, rays_through_windows
 
 __all__ = [
     "WindowPhotos",
+    "cell_means",
     "fill_gaps",
     "latlong_directions",
     "latlong_solid_angles",
@@ -437,6 +441,51 @@ def refine_cells(
         "solved_over_photos": float(np.median(ratios)) if ratios else None,
     }
     return out.reshape(h, 2 * h, 3), info
+
+
+def cell_means(
+    photos: WindowPhotos,
+    basis: CubemapBasis,
+    *,
+    min_texels: int = 8,
+    min_samples: int = 32,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The photos' radiance of each cube cell where they see it cleanly, for the solve.
+
+    Only *clean* texels count: seen unsaturated and never saturated. A texel with some
+    saturated samples keeps only its darker views, so its unsaturated mean is biased
+    low; and a cell with any saturated texel is left out whole, as its clean texels are
+    then its darker part (a bright sky clipped beside them). A cell with at least
+    ``min_texels`` clean texels and ``min_samples`` samples in them, and no saturated
+    sample, gets their solid-angle weighted mean; the fraction of the cell's solid angle
+    they cover says how much of the cell that mean stands for.
+
+    Returns
+    -------
+    means : ndarray, shape (basis.size, 3)
+        Radiance (HDR mesh units) per cell; NaN where the photos do not see it cleanly.
+    fraction : ndarray, shape (basis.size,)
+        Clean texels' share of each cell's solid angle (0 where ``means`` is NaN).
+    """
+    h = photos.height
+    cell = basis.cell_of(latlong_directions(h).reshape(-1, 3))
+    area = latlong_solid_angles(h).ravel()
+    mean = photos.mean.reshape(-1, 3)
+    count = photos.count.ravel()
+    clean = np.isfinite(mean).all(axis=1) & (photos.saturated.ravel() == 0) & (count > 0)
+    n = basis.size
+    texels = np.bincount(cell[clean], minlength=n)
+    samples = np.bincount(cell[clean], weights=count[clean], minlength=n)
+    a_clean = np.bincount(cell[clean], weights=area[clean], minlength=n)
+    a_cell = np.bincount(cell, weights=area, minlength=n)
+    means = np.full((n, 3), np.nan)
+    clipped = np.bincount(cell, weights=photos.saturated.ravel(), minlength=n) > 0
+    ok = (texels >= min_texels) & (samples >= min_samples) & (a_clean > 0) & ~clipped
+    for c in range(3):
+        total = np.bincount(cell[clean], weights=area[clean] * mean[clean, c], minlength=n)
+        means[ok, c] = total[ok] / a_clean[ok]
+    fraction = np.where(ok, a_clean / np.maximum(a_cell, 1e-300), 0.0)
+    return means, fraction
 
 
 def photo_environments(
