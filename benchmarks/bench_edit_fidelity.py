@@ -35,7 +35,10 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
   on flat, noisy regions measures the noise (at 256 spp the truth against itself scores
   about 0.65 at full resolution), the block average cuts the noise 4x;
 * the noise floor: the same figures between two truth renders with different seeds (for
-  the reference row; the other rows reuse it per view unless ``--floor all``).
+  the reference row; the other rows reuse it per view unless ``--floor all``). At 256
+  spp the truth's floor from `furnished`'s input cameras is 8.7 % RMSE, most of a 10 %
+  target; ``--truth-spp 1024`` brings it to 4.5 % (38 min for the seven edits on 2
+  cores; docs/benchmarks.md, "Edit fidelity", session 18).
 
 * where the error is: per view, the share of the squared error within one pixel of a
   depth or normal edge of the scan mesh, the RMSE without those pixels, and the rest's
