@@ -384,8 +384,10 @@ class _Layout:
     smooth_chrom: sp.csr_matrix  # rows sqrt(lambda) (e_i - e_j) over chrom columns
     smooth_mono: sp.csr_matrix  # same over mono columns
     # Right-hand side of smooth_chrom's rows per channel (relative units): 0 for the
-    # smoothness and shape rows, sqrt(lambda w) t for a measured prior's.
+    # smoothness and shape rows, sqrt(lambda w) t for a measured prior's; and its pull on
+    # the normal equations, smooth_chrom^T chrom_rhs (n_chrom, 3), formed once.
     chrom_rhs: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    chrom_pull: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def n_chrom(self) -> int:
@@ -396,7 +398,7 @@ class _Layout:
         return len(self.mono_cols)
 
 
-def _smoothness_rows(
+def _regularisation_rows(
     lights: list[LightBlock],
     offsets: list[int],
     local: dict[int, int],
@@ -404,7 +406,8 @@ def _smoothness_rows(
     lam: dict,
     scale: float = 1.0,
 ) -> tuple[sp.csr_matrix, np.ndarray]:
-    """The regularisation rows ``R x - b`` over some columns, and ``b`` (rows, 3)."""
+    """The regularisation rows ``R x - b`` over some columns (smoothness, shape and
+    measured priors), and ``b`` (rows, 3)."""
     rows, cols, vals = [], [], []
     rhs: list[np.ndarray] = []
     r = 0
@@ -481,10 +484,10 @@ def _layout(
     chrom_lights = [light for light in lights if not light.monochrome]
     chrom_offsets = [int(offsets[i]) for i, lt in enumerate(lights) if not lt.monochrome]
     mono_offsets = [int(offsets[i]) for i, lt in enumerate(lights) if lt.monochrome]
-    smooth_chrom, chrom_rhs = _smoothness_rows(
+    smooth_chrom, chrom_rhs = _regularisation_rows(
         chrom_lights, chrom_offsets, chrom_local, len(chrom), lam, scale
     )
-    smooth_mono, _ = _smoothness_rows(mono_lights, mono_offsets, mono_local, len(mono), lam)
+    smooth_mono, _ = _regularisation_rows(mono_lights, mono_offsets, mono_local, len(mono), lam)
     return _Layout(
         chrom_cols=np.asarray(chrom, dtype=int),
         mono_cols=np.asarray(mono, dtype=int),
@@ -493,6 +496,7 @@ def _layout(
         smooth_chrom=smooth_chrom,
         smooth_mono=smooth_mono,
         chrom_rhs=chrom_rhs,
+        chrom_pull=np.asarray(smooth_chrom.T @ chrom_rhs).reshape(len(chrom), 3),
     )
 
 
@@ -619,9 +623,7 @@ def _light_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> No
         # uncoupled channels: one small NNLS per channel
         for c in range(3):
             g = (f_chrom.T @ f_chrom.multiply(scale[:, c : c + 1])).toarray() + s_c
-            rhs = (
-                f_chrom.T @ (scale[:, c] * target[:, c]) + lay.smooth_chrom.T @ lay.chrom_rhs[:, c]
-            )
+            rhs = f_chrom.T @ (scale[:, c] * target[:, c]) + lay.chrom_pull[:, c]
             st.chrom[:, c] = _nnls_normal(g, rhs)
         return
     s_m = (lay.smooth_mono.T @ lay.smooth_mono).toarray()
@@ -640,9 +642,7 @@ def _light_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> No
         gram[mono, blk] = cm.T
         mm = (f_mono.T @ fm_w).toarray()
         gram[mono, mono] += mm * np.outer(col_of[:, c], col_of[:, c])
-        rhs[blk] = f_chrom.T @ (scale[:, c] * target[:, c])
-        if kc:
-            rhs[blk] += lay.smooth_chrom.T @ lay.chrom_rhs[:, c]
+        rhs[blk] = f_chrom.T @ (scale[:, c] * target[:, c]) + lay.chrom_pull[:, c]
         rhs[mono] += col_of[:, c] * (f_mono.T @ (scale[:, c] * target[:, c]))
     gram[mono, mono] += s_m
     x = _nnls_normal(gram, rhs)
@@ -669,8 +669,7 @@ def _color_step(data: _Data, lay: _Layout, st: _State, weight: np.ndarray) -> No
         g = (design.T @ design.multiply(scale[:, c : c + 1])).toarray()
         g[:kc, :kc] += s_c
         rhs = design.T @ (scale[:, c] * target[:, c])
-        if kc:
-            rhs[:kc] += lay.smooth_chrom.T @ lay.chrom_rhs[:, c]
+        rhs[:kc] += lay.chrom_pull[:, c]
         x = _nnls_normal(g, rhs)
         st.chrom[:, c] = x[:kc]
         new_color[:, c] = x[kc:]
