@@ -34,11 +34,15 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
   same after averaging 4 x 4 pixel blocks of the linear images (``SSIM 1/4 res``): SSIM
   on flat, noisy regions measures the noise (at 256 spp the truth against itself scores
   about 0.65 at full resolution), the block average cuts the noise 4x;
-* the noise floor: the same figures between two truth renders with different seeds (for
-  the reference row; the other rows reuse it per view unless ``--floor all``). At 256
+* the noise floor: the same figures between two truth renders with different seeds, per
+  edit (``--floor reference`` renders it for the reference row only and reuses it per
+  view: faster, but an edit whose truth is noisier than the reference's, as the panel
+  switched off, then keeps part of its truth's noise in the corrected figure: 13.8 %
+  with the reused floor, 12.3 % with its own, docs/benchmarks.md session 19). At 256
   spp the truth's floor from `furnished`'s input cameras is 8.7 % RMSE, most of a 10 %
   target; ``--truth-spp 1024`` brings it to 4.5 % (38 min for the seven edits on 2
-  cores; docs/benchmarks.md, "Edit fidelity", session 18).
+  cores with the reference's floor only, about 4 min more per edit for its own floor;
+  docs/benchmarks.md, "Edit fidelity", sessions 18-19).
 
 * where the error is: per view, the share of the squared error within one pixel of a
   depth or normal edge of the scan mesh, the RMSE without those pixels, and the rest's
@@ -81,6 +85,26 @@ EDIT_SETS: dict[str, list[dict[str, Any]]] = {
         }
     ],
 }
+
+
+def edit_ops(edit: str, truth_lights: list[str]) -> list[dict[str, Any]]:
+    """The operations of edit set ``edit``: a name of :data:`EDIT_SETS`, or ``alone:NAME``.
+
+    ``alone:NAME`` (a diagnosis, not one of the issue's edits) switches off every true
+    light but ``NAME``: that light's own light in the renders, indirect included, against
+    the truth's; e.g. ``alone:ceiling_panel`` separates the panel from the lights that
+    stay on when it is switched off.
+    """
+    if edit.startswith("alone:"):
+        keep = edit.split(":", 1)[1]
+        if keep not in truth_lights:
+            raise SystemExit(f"--edits {edit}: no true light {keep!r} (lights: {truth_lights})")
+        return [{"op": "light", "name": n, "off": True} for n in truth_lights if n != keep]
+    if edit not in EDIT_SETS:
+        raise SystemExit(f"--edits: unknown edit set {edit!r} (sets: {', '.join(EDIT_SETS)})")
+    return EDIT_SETS[edit]
+
+
 #: Targets of issue #6 (furnished): relative RMSE <= 10 % and SSIM >= 0.9 for the empty
 #: room, relight and repaint edits.
 TARGET_RMSE = 0.10
@@ -262,7 +286,11 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=256, help="samples per pixel of ours")
     ap.add_argument("--truth-spp", type=int, default=256)
     ap.add_argument("--frames", default="5,15,40", help="input frame indices")
-    ap.add_argument("--edits", default=",".join(EDIT_SETS), help="edit sets to run")
+    ap.add_argument(
+        "--edits",
+        default=",".join(EDIT_SETS),
+        help="edit sets to run (names of EDIT_SETS, or alone:NAME: every true light but NAME off)",
+    )
     ap.add_argument("--model-max-depth", type=int, default=64)
     ap.add_argument(
         "--denoise",
@@ -273,8 +301,8 @@ def main() -> None:
     ap.add_argument(
         "--floor",
         choices=("all", "reference"),
-        default="reference",
-        help="noise floor (second truth render) for every edit or only the reference row",
+        default="all",
+        help="noise floor (second truth render) for every edit (default) or only the reference row",
     )
     ap.add_argument("--docs-images", type=Path, default=None, help="write fidelity_*.png here")
     args = ap.parse_args()
@@ -374,6 +402,8 @@ def main() -> None:
     chosen = [e for e in args.edits.split(",") if e]
     if "reference" in EDIT_SETS and chosen[0] != "reference" and args.floor == "reference":
         chosen = ["reference", *[e for e in chosen if e != "reference"]]
+    truth_lights = [str(t["name"]) for t in truth_desc.get("lights", [])]
+    edit_sets = {e: edit_ops(e, truth_lights) for e in chosen}
     doc_out = {
         "scan": str(scan_dir),
         "spp_ours": args.spp,
@@ -387,12 +417,12 @@ def main() -> None:
             if v["group"] == "new"
         ],
         "light_names": names,
-        "edit_sets": {e: EDIT_SETS[e] for e in chosen},
+        "edit_sets": edit_sets,
         "results": results,
     }
     seen: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}  # images by (edit, view)
     for edit in chosen:
-        ops = EDIT_SETS[edit]
+        ops = edit_sets[edit]
         t0 = time.perf_counter()
         truth = render_truth_cached(gt_scene, ops, views, args.truth_spp, 1, out)
         floor_imgs = None
@@ -538,7 +568,7 @@ def main() -> None:
                                for n in ("wall", "floor", "ceiling")) + " |")  # fmt: skip
     shares = [(r["edit"], q) for r in results for q in r["per_view"] if "light_share_truth" in q]
     if shares:
-        print("\nThe switched-off light's share of each view's light (1 - off / unedited, Rec. 709")
+        print("\nThe switched-off lights' share of each view's light (1 - off / unedited, Rec. 709")
         print("luminance), truth / ours:\n")
         print(
             "| edit | view | all | wall | floor | ceiling | other |\n|---|---|---|---|---|---|---|"
