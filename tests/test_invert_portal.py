@@ -117,3 +117,26 @@ def test_portal_receivers_behind_or_facing_away_get_nothing_and_bad_input_is_nam
         window_portal_transfer(caster, window, basis, pts, np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         window_portal_transfer(caster, window, basis, pts, nrm[:1])
+
+
+def test_portal_direction_weight_scales_each_direction():
+    mesh, window, recv = _room()
+    caster, basis = RayCaster(mesh), CubemapBasis(4)
+    p, n = mesh.vertices[recv], np.tile([0, 0, 1.0], (len(recv), 1))
+    flat = window_portal_transfer(caster, window, basis, p, n, 64, seed=1)
+    # The same samples (same seed): a constant weight scales the transfer exactly.
+    twice = window_portal_transfer(
+        caster, window, basis, p, n, 64, seed=1, direction_weight=lambda d: np.full(len(d), 2.0)
+    )
+    np.testing.assert_allclose(twice, 2.0 * flat, rtol=1e-12)
+    # A weight that keeps the directions towards +x only: receivers left of the opening
+    # (x < -A, looking up and to the right through it) keep all their light, those right
+    # of it none.
+    east = window_portal_transfer(
+        caster, window, basis, p, n, 64, seed=1,
+        direction_weight=lambda d: (d[:, 0] > 0).astype(float),
+    )  # fmt: skip
+    left, right = p[:, 0] < -A, p[:, 0] > A
+    assert left.any() and right.any()
+    np.testing.assert_allclose(east[left], flat[left], rtol=1e-12)
+    assert np.all(east[right] == 0) and np.any(flat[right] > 0)

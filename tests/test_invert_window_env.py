@@ -328,24 +328,58 @@ def test_cell_means_use_clean_texels_only(window_scan):
 
 
 def test_pipeline_builds_the_window_prior_from_the_photos(window_scan, tmp_path):
-    from reroom.invert.pipeline import InvertOptions, _window_photo_priors
+    from reroom.invert.pipeline import InvertOptions, _window_photo_priors, _window_photos
 
     root, env = window_scan
     basis = CubemapBasis(4)
     notes: list[str] = []
-    off = _window_photo_priors(root, _room(), None, [WINDOW], basis, InvertOptions(), notes)
+    assert _window_photos(root, _room(), None, [WINDOW], InvertOptions(), notes) is None
+    off = _window_photo_priors(None, [WINDOW], basis, InvertOptions())
     assert off == [(None, None, {})]
     opts = InvertOptions(window_photo_prior=1e5)
-    ((prior, weight, info),) = _window_photo_priors(
-        root, _room(), None, [WINDOW], basis, opts, notes
-    )
+    photos = _window_photos(root, _room(), None, [WINDOW], opts, notes)
+    ((prior, weight, info),) = _window_photo_priors(photos, [WINDOW], basis, opts)
     seen = weight > 0
     assert info["photo_prior"]["cells"] == int(seen.sum()) > 0
     assert np.all(weight <= 1e5) and np.all(np.isfinite(prior))
     np.testing.assert_allclose(prior[seen], _cell_means(env, basis)[seen], rtol=0.35)
     # Photos that cannot be read back: no prior, and a note that says why.
     notes.clear()
-    ((prior, weight, info),) = _window_photo_priors(
-        tmp_path, _room(), None, [WINDOW], basis, opts, notes
-    )
-    assert prior is None and weight is None and "window photo prior: not used" in notes[0]
+    assert _window_photos(tmp_path, _room(), None, [WINDOW], opts, notes) is None
+    assert "window photos: not used before the solve" in notes[0]
+    assert _window_photo_priors(None, [WINDOW], basis, opts) == [(None, None, {})]
+
+
+def test_cell_shapes_follow_the_photos_with_mean_one_per_cell(window_scan):
+    from reroom.invert.window_env import cell_shapes, latlong_lookup
+
+    root, env = window_scan
+    basis = CubemapBasis(4)
+    (photos,), _ = observe_windows(root, _room(), [WINDOW], height=H)
+    shape, info = cell_shapes(photos, basis, min_texels=4, min_samples=16)
+    assert shape.shape == (H, 2 * H) and np.all(shape > 0)
+    cell = basis.cell_of(latlong_directions(H).reshape(-1, 3))
+    area = latlong_solid_angles(H).ravel()
+    flat_shape = shape.ravel()
+    shaped = np.unique(cell[flat_shape != 1.0])
+    assert info["cells_shaped"] >= len(shaped) >= 1 and info["spread"] > 0
+    for j in shaped:
+        m = cell == j
+        assert np.average(flat_shape[m], weights=area[m]) == pytest.approx(1.0, rel=1e-9)
+        # Within a cell, the texels the photos saw unsaturated keep the environment's
+        # luminance ratios (8-bit steps aside).
+        seen = m & (photos.count.ravel() > 0)
+        if seen.sum() >= 2:
+            lum = env.reshape(-1, 3)[seen] @ np.array([0.2126, 0.7152, 0.0722])
+            ratio = flat_shape[seen] / lum
+            np.testing.assert_allclose(ratio, ratio.mean(), rtol=0.05)
+    # Cells the photos do not see stay flat, and the lookup reads the texel a direction
+    # falls in.
+    unseen = np.setdiff1d(np.arange(basis.size), np.unique(cell[photos.count.ravel() > 0]))
+    assert np.all(flat_shape[np.isin(cell, unseen)] == 1.0)
+    look = latlong_lookup(shape)
+    d = latlong_directions(H).reshape(-1, 3)
+    np.testing.assert_array_equal(look(d), flat_shape)
+    # Too few observations: flat everywhere.
+    none, info0 = cell_shapes(photos, basis, min_texels=10_000)
+    assert np.all(none == 1.0) and info0 == {"cells_shaped": 0, "spread": 0.0}

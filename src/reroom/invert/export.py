@@ -509,6 +509,8 @@ def light_entries(
                 ]
             if "photo_prior" in info:  # InvertOptions.window_photo_prior
                 e["distribution"]["photo_prior"] = info["photo_prior"]
+            if "photo_shapes" in info:  # InvertOptions.window_photo_shapes
+                e["distribution"]["photo_shapes"] = info["photo_shapes"]
             e["power"] = window_power(cells, basis, n_in, _window_area(g)).tolist()
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)

@@ -177,6 +177,11 @@ class InvertOptions:
         relative to the cells' smoothness weight ``lambda_l`` and scaled by the share of
         each cell the photos see cleanly (never saturated;
         :func:`reroom.invert.window_env.cell_means`); 0: none.
+    window_photo_shapes : bool
+        Weight each direction of a window's transfer by the photos' luminance pattern
+        within its cube cell (:func:`reroom.invert.window_env.cell_shapes`), so that a
+        receiver that sees part of a cell through the opening gets that part's light;
+        False: each cell flat, as the basis is.
     refine_points : bool
         After the first solve, move each point light to where its share of the solved
         lighting fits the photos best (:mod:`reroom.invert.refine_points`), then solve
@@ -240,6 +245,7 @@ class InvertOptions:
     texel: float | None = None
     window_photos: bool = True
     window_photo_prior: float = 0.0
+    window_photo_shapes: bool = False
     refine_points: bool = True
     refine_max_shift: float = 0.3
     refine_max_receivers: int = 20000
@@ -408,27 +414,42 @@ def _line_open_shape(
     return open_frac, info
 
 
-def _window_photo_priors(
-    scan: Path, mesh, caster, openings: list, basis, options: InvertOptions, notes: list[str]
-) -> list[tuple[np.ndarray | None, np.ndarray | None, dict]]:
-    """Per window: the photos' clean view of its cells as a prior ``(values, weights, info)``.
+def _window_photos(
+    scan: Path, mesh, caster, openings: list, options: InvertOptions, notes: list[str]
+) -> list | None:
+    """The photos' view through each window, when an option uses it before the solve.
 
-    ``(None, None, {})`` for each window when ``window_photo_prior`` is 0; with a note
-    (and no prior) when the photos cannot be read back (e.g. no ``hdr/exposures.json``).
+    None when neither ``window_photo_prior`` nor ``window_photo_shapes`` asks for it, or
+    (with a note) when the photos cannot be read back (e.g. no ``hdr/exposures.json``).
     """
-    none: list[tuple[np.ndarray | None, np.ndarray | None, dict]] = [
-        (None, None, {}) for _ in openings
-    ]
-    if options.window_photo_prior <= 0 or not openings:
-        return none
-    from reroom.invert.window_env import cell_means, observe_windows
+    if not openings or (options.window_photo_prior <= 0 and not options.window_photo_shapes):
+        return None
+    from reroom.invert.window_env import observe_windows
 
     try:
         photos, stats = observe_windows(scan, mesh, openings, caster=caster)
     except (ReroomError, OSError, ValueError) as exc:
-        notes.append(f"window photo prior: not used ({exc})")
-        return none
+        notes.append(f"window photos: not used before the solve ({exc})")
+        return None
     notes.extend(stats["notes"])
+    return photos
+
+
+def _window_photo_priors(
+    photos: list | None, openings: list, basis, options: InvertOptions
+) -> list[tuple[np.ndarray | None, np.ndarray | None, dict]]:
+    """Per window: the photos' clean view of its cells as a prior ``(values, weights, info)``.
+
+    ``(None, None, {})`` for each window when ``window_photo_prior`` is 0 or there are no
+    photos (:func:`_window_photos`).
+    """
+    none: list[tuple[np.ndarray | None, np.ndarray | None, dict]] = [
+        (None, None, {}) for _ in openings
+    ]
+    if options.window_photo_prior <= 0 or photos is None:
+        return none
+    from reroom.invert.window_env import cell_means
+
     out = []
     for ph in photos:
         means, fraction = cell_means(ph, basis)
@@ -631,9 +652,17 @@ def run_invert(
         )
         columns.append(f_area[:, None])
         info.append({"name": light.name, "type": "area", "geometry": light.geometry})
-    priors = _window_photo_priors(scan, mesh, caster, openings, basis, options, notes)
+    photos = _window_photos(scan, mesh, caster, openings, options, notes)
+    priors = _window_photo_priors(photos, openings, basis, options)
     for k, light in enumerate(wins):
         prior, prior_weight, prior_info = priors[k]
+        direction_weight = None
+        if options.window_photo_shapes and photos is not None and isinstance(basis, CubemapBasis):
+            from reroom.invert.window_env import cell_shapes, fill_gaps, latlong_lookup
+
+            shape, shape_info = cell_shapes(fill_gaps(photos[k]), basis)
+            prior_info = {**prior_info, "photo_shapes": shape_info}
+            direction_weight = latlong_lookup(shape)
         blocks.append(
             LightBlock(
                 light.name,
@@ -659,6 +688,7 @@ def run_invert(
                     options.window_samples,
                     seed=options.seed + 101 + k,
                     pane_faces=pane,
+                    direction_weight=direction_weight,
                 )
             )
         else:

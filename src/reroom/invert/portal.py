@@ -25,6 +25,8 @@ same estimator seen from the receiver.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -54,6 +56,7 @@ def window_portal_transfer(
     offset: float | None = None,
     tolerance: float = 0.02,
     pane_faces: ArrayLike | None = None,
+    direction_weight: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Irradiance at each point per unit radiance of each distant-light basis function.
 
@@ -86,6 +89,11 @@ def window_portal_transfer(
         pane or bright region the light detector labelled as the window), which the
         shadow rays pass as the hemisphere transfer counts a hit on it as the window's
         light. None: every triangle blocks.
+    direction_weight:
+        ``f(directions (M, 3)) -> (M,)``: a weight per direction leaving the room, e.g.
+        the sky's pattern within each cube cell
+        (:func:`reroom.invert.window_env.cell_shapes`), so that a receiver that sees part
+        of a cell gets that part's share of the cell's value. None: 1 (each cell flat).
 
     Returns
     -------
@@ -149,6 +157,8 @@ def window_portal_transfer(
         live = ~blocked
         # Each sample stands for area / s of the opening.
         weight = value[live] * (window.area / s)
+        if direction_weight is not None:
+            weight = weight * np.asarray(direction_weight(d[live]), np.float64)
         if cube:
             key = owner[live] * basis.size + basis.cell_of(d[live])
             out[rows] = np.bincount(key, weight, minlength=m * basis.size).reshape(m, basis.size)

@@ -57,8 +57,10 @@ from reroom.invert.windows import WindowOpening, rays_through_windows
 __all__ = [
     "WindowPhotos",
     "cell_means",
+    "cell_shapes",
     "fill_gaps",
     "latlong_directions",
+    "latlong_lookup",
     "latlong_solid_angles",
     "observe_windows",
     "photo_environments",
@@ -486,6 +488,74 @@ def cell_means(
         means[ok, c] = total[ok] / a_clean[ok]
     fraction = np.where(ok, a_clean / np.maximum(a_cell, 1e-300), 0.0)
     return means, fraction
+
+
+def cell_shapes(
+    photos: WindowPhotos,
+    basis: CubemapBasis,
+    *,
+    min_texels: int = 8,
+    min_samples: int = 32,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The photos' luminance pattern within each cube cell, for the window's transfer.
+
+    A cell's basis function is constant over its solid angle, but the sky it stands for is
+    not: receivers that see only part of a cell through the opening get that part's
+    light, not the cell's mean. The photos show the pattern where they see the view, so
+    the transfer can weight each direction by it (the cell's value stays its mean). Per
+    texel: the unsaturated mean where there is one, the saturated samples' lower bound
+    where there is only that (raised to at least the cell's seen mean), and the cell's
+    seen mean where no photo looked; the texels' solid-angle weighted mean is then scaled
+    to 1 in every cell. A cell with fewer than ``min_texels`` seen texels or
+    ``min_samples`` samples stays flat (1).
+
+    Returns
+    -------
+    shape : ndarray, shape (H, 2H)
+        Luminance weight per texel, mean 1 over each cube cell.
+    info : dict
+        ``cells_shaped``, and ``spread``: the solid-angle weighted standard deviation of the
+        shape over the shaped cells (0 for a sky that is flat within every cell).
+    """
+    h = photos.height
+    cell = basis.cell_of(latlong_directions(h).reshape(-1, 3))
+    area = latlong_solid_angles(h).ravel()
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    count = photos.count.ravel()
+    seen = np.isfinite(photos.mean.reshape(-1, 3)).all(axis=1) & (count > 0)
+    value = np.where(seen, np.nan_to_num(photos.mean.reshape(-1, 3)) @ lum, 0.0)
+    bound = photos.bound.reshape(-1, 3) @ lum
+    n = basis.size
+    texels = np.bincount(cell[seen], minlength=n)
+    samples = np.bincount(cell[seen], weights=count[seen], minlength=n)
+    a_seen = np.bincount(cell[seen], weights=area[seen], minlength=n)
+    seen_mean = np.bincount(cell[seen], weights=area[seen] * value[seen], minlength=n)
+    seen_mean = np.where(a_seen > 0, seen_mean / np.maximum(a_seen, 1e-300), 0.0)
+    ok = (texels >= min_texels) & (samples >= min_samples) & (seen_mean > 0)
+    level = seen_mean[cell]
+    raw = np.where(seen, value, np.where(bound > 0, np.maximum(bound, level), level))
+    cell_mean = np.bincount(cell, weights=area * raw, minlength=n) / np.maximum(
+        np.bincount(cell, weights=area, minlength=n), 1e-300
+    )
+    shape = np.ones(len(cell))
+    use = ok[cell] & (cell_mean[cell] > 0)
+    shape[use] = raw[use] / cell_mean[cell[use]]
+    spread = 0.0
+    if use.any():
+        spread = float(np.sqrt(np.average((shape[use] - 1.0) ** 2, weights=area[use])))
+    return shape.reshape(h, 2 * h), {"cells_shaped": int(ok.sum()), "spread": round(spread, 4)}
+
+
+def latlong_lookup(values: np.ndarray):
+    """``f(directions (N, 3)) -> (N,)``: the texel of a ``(H, 2H)`` lat-long map each
+    direction falls in (nearest texel, as the photos were binned)."""
+    flat = np.asarray(values, np.float64).ravel()
+    height = int(np.asarray(values).shape[0])
+
+    def lookup(directions: np.ndarray) -> np.ndarray:
+        return flat[_texel_index(np.asarray(directions, np.float64), height)]
+
+    return lookup
 
 
 def photo_environments(
