@@ -383,3 +383,55 @@ def test_cell_shapes_follow_the_photos_with_mean_one_per_cell(window_scan):
     # Too few observations: flat everywhere.
     none, info0 = cell_shapes(photos, basis, min_texels=10_000)
     assert np.all(none == 1.0) and info0 == {"cells_shaped": 0, "spread": 0.0}
+
+
+def test_window_view_spreads_cells_as_the_captured_view():
+    from reroom.invert.window_env import WindowView
+
+    basis = CubemapBasis(4)
+    env = _environment()  # smooth colours with a bright band: a pattern within cells
+    n_in = np.array([0.0, 1.0, 0.0])
+    # Any overall scale of the capture: only the pattern is used.
+    view = WindowView.from_image(3.0 * env, basis, n_in, samples=2_000_000)
+    shown = np.all(view.means > 0, axis=1)
+    assert shown.sum() >= 16  # the cells of the half-sphere beyond the wall
+    rng = np.random.default_rng(5)
+    d = rng.standard_normal((2_000_000, 3))
+    d = d[d @ n_in < 0]
+    cell = basis.cell_of(d)
+    w = view.weight(basis)(d)
+    # The transfer's weight is 1 on average over each shown cell's outgoing directions ...
+    # (cells with enough samples: the bright band makes the mean noisy in small ones)
+    for j in np.flatnonzero(shown):
+        if np.count_nonzero(cell == j) >= 20_000:
+            assert w[cell == j].mean() == pytest.approx(1.0, rel=0.02)
+    # ... and follows the view within it: the bright band weighs several times its cell.
+    assert w.max() > 3.0 and w.min() < 1.0
+    # The rendering map puts each solved cell where the view puts its light: over the
+    # outgoing directions its mean is the solved value, and its pattern is the view's.
+    cells = rng.uniform(0.5, 2.0, (basis.size, 3))
+    h = H
+    m = view.environment(cells, basis, h).reshape(-1, 3)
+    dirs = latlong_directions(h).reshape(-1, 3)
+    area = latlong_solid_angles(h).ravel()
+    out = dirs @ n_in < 0
+    c = basis.cell_of(dirs)
+    j = int(np.flatnonzero(shown)[0])
+    sel = out & (c == j)
+    mean = (area[sel, None] * m[sel]).sum(0) / area[sel].sum()
+    np.testing.assert_allclose(mean, cells[j], rtol=0.05)
+    ratio = m[sel] / env.reshape(-1, 3)[sel]
+    np.testing.assert_allclose(ratio, np.broadcast_to(ratio.mean(axis=0), ratio.shape), rtol=0.05)
+    # A black view leaves the cells flat.
+    flat = WindowView.from_image(np.zeros_like(env), basis, n_in, samples=10_000)
+    assert np.all(flat.weight(basis)(d[:100]) == 1.0)
+
+
+def test_pipeline_rejects_an_unreadable_view_hdri(tmp_path):
+    from reroom.errors import ScanError
+    from reroom.invert.pipeline import InvertOptions, _window_view
+
+    bad = tmp_path / "view.exr"
+    bad.write_text("not an image")
+    with pytest.raises(ScanError, match="view.exr"):
+        _window_view(InvertOptions(window_view_hdri=str(bad)), CubemapBasis(4), WINDOW)

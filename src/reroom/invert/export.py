@@ -511,6 +511,8 @@ def light_entries(
                 e["distribution"]["photo_prior"] = info["photo_prior"]
             if "photo_shapes" in info:  # InvertOptions.window_photo_shapes
                 e["distribution"]["photo_shapes"] = info["photo_shapes"]
+            if "view" in info:  # InvertOptions.window_view_hdri
+                e["distribution"]["view"] = info["view"]
             e["power"] = window_power(cells, basis, n_in, _window_area(g)).tolist()
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)
@@ -519,7 +521,10 @@ def light_entries(
                 write_exr(out / f"window_{block.name}.exr", ll if photo is None else photo[0])
                 e["environment_exr"] = f"window_{block.name}.exr"
                 e["environment_cells_exr"] = f"window_{block.name}_cells.exr"
-                e["environment_source"] = "photos+cells" if photo is not None else "cells"
+                source = "cells"
+                if photo is not None:
+                    source = "view+cells" if "view_hdri" in photo[1] else "photos+cells"
+                e["environment_source"] = source
                 if photo is not None:
                     e["environment_photos"] = photo[1]
         elif block.kind == "point":
@@ -564,8 +569,12 @@ def window_photo_maps(
     scan_dir: str | Path,
     height: int = 128,
     min_bin_support: float = 0.01,
+    view: tuple[str, float] | None = None,
 ) -> tuple[dict[str, tuple[np.ndarray, dict[str, Any]]], list[str]]:
     """Rendering maps of the result's windows from the scan's photos, by window name.
+
+    With ``view`` (``InvertOptions.window_view_hdri`` and its rotation), from that HDRI of
+    the view instead (:class:`reroom.invert.window_env.WindowView`).
 
     See :mod:`reroom.invert.window_env`. Returns the maps with their figures, and notes
     for the report (frames skipped; an empty dict with a note when it cannot be done,
@@ -588,6 +597,21 @@ def window_photo_maps(
     if not wins:
         return {}, []
     basis = CubemapBasis(result.cubemap_n)
+    if view is not None:
+        # A captured view of the window spreads each solved cell (its pattern, not the
+        # photos', which clip the view): the transfer was weighted by the same pattern.
+        from reroom.invert.window_env import WindowView
+        from reroom.render.emitters import load_hdri
+
+        image = load_hdri(view[0])
+        out = {}
+        for name, opening, cells in wins:
+            wv = WindowView.from_image(image, basis, opening.normal, view[1])
+            out[name] = (
+                wv.environment(cells, basis, height),
+                {"view_hdri": str(view[0]), "rotation_deg": view[1], "height": height},
+            )
+        return out, []
     try:
         maps, infos, stats = photo_environments(
             scan_dir, mesh, [(o, c) for _, o, c in wins], basis, height=height
@@ -623,8 +647,12 @@ def write_outputs(
     min_bin_support = float(meta.get("options", {}).get("min_bin_support", 0.01))
     window_maps: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
     if window_photos and meta.get("scan"):
+        opts = meta.get("options", {})
+        view = None
+        if opts.get("window_view_hdri"):
+            view = (str(opts["window_view_hdri"]), float(opts.get("window_view_rotation_deg", 0.0)))
         window_maps, photo_notes = window_photo_maps(
-            result, mesh, Path(meta["scan"]), min_bin_support=min_bin_support
+            result, mesh, Path(meta["scan"]), min_bin_support=min_bin_support, view=view
         )
         result.warnings.extend(photo_notes)
     flags = result.flags

@@ -182,6 +182,14 @@ class InvertOptions:
         within its cube cell (:func:`reroom.invert.window_env.cell_shapes`), so that a
         receiver that sees part of a cell through the opening gets that part's light;
         False: each cell flat, as the basis is.
+    window_view_hdri : str or None
+        An HDRI of the view outside the windows (an EXR, equirectangular in the scan's
+        frame, any overall scale; :class:`reroom.invert.window_env.WindowView`): its
+        pattern within each cube cell weights the windows' transfer, as
+        ``window_photo_shapes`` does with the photos, and spreads each solved cell in
+        the rendering map. Takes precedence over ``window_photo_shapes``.
+    window_view_rotation_deg : float
+        That HDRI's turn about +Z (degrees).
     refine_points : bool
         After the first solve, move each point light to where its share of the solved
         lighting fits the photos best (:mod:`reroom.invert.refine_points`), then solve
@@ -246,6 +254,8 @@ class InvertOptions:
     window_photos: bool = True
     window_photo_prior: float = 0.0
     window_photo_shapes: bool = False
+    window_view_hdri: str | None = None
+    window_view_rotation_deg: float = 0.0
     refine_points: bool = True
     refine_max_shift: float = 0.3
     refine_max_receivers: int = 20000
@@ -433,6 +443,24 @@ def _window_photos(
         return None
     notes.extend(stats["notes"])
     return photos
+
+
+def _window_view(options: InvertOptions, basis, opening):
+    """The :class:`~reroom.invert.window_env.WindowView` of ``window_view_hdri`` for one
+    window; :class:`~reroom.errors.ScanError` naming the file if it cannot be read."""
+    from reroom.invert.window_env import WindowView
+    from reroom.render.emitters import load_hdri
+
+    path = Path(str(options.window_view_hdri))
+    try:
+        image = load_hdri(path)
+    except (OSError, ValueError, RuntimeError) as exc:
+        raise ScanError(path, f"cannot read the window's view HDRI ({exc})") from exc
+    if not np.isfinite(image).all() or not (image.max() > 0):
+        raise ScanError(path, "the window's view HDRI is black or not finite")
+    return WindowView.from_image(
+        image, basis, opening.normal, options.window_view_rotation_deg, seed=options.seed
+    )
 
 
 def _window_photo_priors(
@@ -657,7 +685,17 @@ def run_invert(
     for k, light in enumerate(wins):
         prior, prior_weight, prior_info = priors[k]
         direction_weight = None
-        if options.window_photo_shapes and photos is not None and isinstance(basis, CubemapBasis):
+        if options.window_view_hdri is not None and isinstance(basis, CubemapBasis):
+            view = _window_view(options, basis, openings[k])
+            prior_info = {
+                **prior_info,
+                "view": {
+                    "hdri": str(options.window_view_hdri),
+                    "rotation_deg": options.window_view_rotation_deg,
+                },
+            }
+            direction_weight = view.weight(basis)
+        elif options.window_photo_shapes and photos is not None and isinstance(basis, CubemapBasis):
             from reroom.invert.window_env import cell_shapes, fill_gaps, latlong_lookup
 
             shape, shape_info = cell_shapes(fill_gaps(photos[k]), basis)

@@ -56,6 +56,7 @@ from reroom.invert.windows import WindowOpening, rays_through_windows
 
 __all__ = [
     "WindowPhotos",
+    "WindowView",
     "cell_means",
     "cell_shapes",
     "fill_gaps",
@@ -556,6 +557,76 @@ def latlong_lookup(values: np.ndarray):
         return flat[_texel_index(np.asarray(directions, np.float64), height)]
 
     return lookup
+
+
+@dataclass
+class WindowView:
+    """A captured HDRI of the view outside a window, for its pattern within each cube cell.
+
+    The frames, exposed for the room, clip most of what they see through a window, so
+    they cannot say how a cell's light is spread over it (:func:`cell_shapes`). An HDRI
+    taken at the window (bracketed exposures merged; any overall scale) can: the solve
+    still finds each cell's level, and the view says how it is spread. The map is
+    equirectangular in the scan's frame (zenith up, the convention of
+    :func:`reroom.render.emitters.latlong_direction_to_uv`) turned by ``rotation_deg``
+    about +Z; ``means`` are its cell means over the directions that leave the room
+    through the window (``d . n_in < 0``), which is what a cell's basis light stands for.
+    """
+
+    image: np.ndarray
+    rotation_deg: float
+    means: np.ndarray
+
+    @classmethod
+    def from_image(
+        cls,
+        image: np.ndarray,
+        basis: CubemapBasis,
+        inward_normal: np.ndarray,
+        rotation_deg: float = 0.0,
+        samples: int = 200_000,
+        seed: int = 0,
+    ) -> WindowView:
+        from reroom.render.emitters import latlong_lookup as lookup
+
+        rng = np.random.default_rng(seed)
+        d = rng.standard_normal((samples, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        d = d[d @ np.asarray(inward_normal, float) < 0]
+        cell = basis.cell_of(d)
+        vals = lookup(image, d, rotation_deg)
+        count = np.bincount(cell, minlength=basis.size).astype(float)
+        sums = np.stack(
+            [np.bincount(cell, weights=vals[:, c], minlength=basis.size) for c in range(3)], 1
+        )
+        return cls(np.asarray(image), float(rotation_deg), sums / np.maximum(count, 1.0)[:, None])
+
+    def _ratio(self, directions: np.ndarray, basis: CubemapBasis) -> np.ndarray:
+        from reroom.render.emitters import latlong_lookup as lookup
+
+        d = np.asarray(directions, np.float64)
+        return lookup(self.image, d, self.rotation_deg), self.means[basis.cell_of(d)]
+
+    def weight(self, basis: CubemapBasis):
+        """``f(directions (N, 3)) -> (N,)``: luminance over the cell's mean luminance (1
+        where the cell's mean is 0), for :func:`reroom.invert.portal.window_portal_transfer`."""
+        lum = np.array([0.2126, 0.7152, 0.0722])
+
+        def weight(directions: np.ndarray) -> np.ndarray:
+            v, m = self._ratio(directions, basis)
+            ml = m @ lum
+            return np.where(ml > 0, (v @ lum) / np.maximum(ml, 1e-300), 1.0)
+
+        return weight
+
+    def environment(self, cells: np.ndarray, basis: CubemapBasis, height: int) -> np.ndarray:
+        """``(H, 2H, 3)`` rendering map: each solved cell spread as the view spreads it,
+        channel by channel (the cell's value where the view's cell mean is 0)."""
+        d = latlong_directions(height).reshape(-1, 3)
+        v, m = self._ratio(d, basis)
+        c = np.asarray(cells, np.float64)[basis.cell_of(d)]
+        out = np.where(m > 0, c * v / np.maximum(m, 1e-300), c)
+        return out.reshape(height, 2 * height, 3)
 
 
 def photo_environments(
