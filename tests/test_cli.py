@@ -109,6 +109,14 @@ def test_invert_refuses_an_unknown_fill(tmp_path: Path) -> None:
     assert "--unobserved-fill must be one of bounce, mean" in result.output
 
 
+def test_invert_refuses_a_missing_window_view(tmp_path: Path) -> None:
+    missing = tmp_path / "view.exr"
+    result = runner.invoke(app, ["invert", str(tmp_path), "--window-view", str(missing)])
+    assert result.exit_code == 2
+    out = " ".join(result.output.split())  # rich wraps long lines
+    assert "--window-view" in out and "no such file" in out
+
+
 def test_demo_scan_state_regenerates_a_scan_with_other_frames_or_samples(tmp_path: Path) -> None:
     """`reroom demo` keeps its scan only if frame count and samples per pixel match."""
     import json

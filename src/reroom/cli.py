@@ -436,6 +436,16 @@ def invert(
             "bounce of the observed light) | mean (the thesis's eq. 5.9)."
         ),
     ] = "bounce",
+    window_view: Annotated[
+        Path | None,
+        typer.Option(
+            help="An HDRI of the view outside the windows (EXR, equirectangular in the "
+            "scan's frame, any scale): how the sky's light is spread within each cube cell."
+        ),
+    ] = None,
+    window_view_rotation: Annotated[
+        float, typer.Option(help="That HDRI's turn about the up axis, degrees.")
+    ] = 0.0,
     settings: Annotated[
         list[str] | None,
         typer.Option(
@@ -461,7 +471,12 @@ def invert(
         textures=textures,
         texel=texel,
         unobserved_fill=unobserved_fill,
+        window_view_hdri=None if window_view is None else str(window_view),
+        window_view_rotation_deg=window_view_rotation,
     )
+    if window_view is not None and not window_view.is_file():
+        console.print(f"[red]error:[/] --window-view: {window_view}: no such file")
+        raise typer.Exit(2)
     if unobserved_fill not in UNOBSERVED_FILLS:
         console.print(
             f"[red]error:[/] --unobserved-fill must be one of {', '.join(UNOBSERVED_FILLS)}, "
