@@ -435,3 +435,17 @@ def test_pipeline_rejects_an_unreadable_view_hdri(tmp_path):
     bad.write_text("not an image")
     with pytest.raises(ScanError, match="view.exr"):
         _window_view(InvertOptions(window_view_hdri=str(bad)), CubemapBasis(4), WINDOW)
+
+
+def test_window_power_counts_the_cells_spread():
+    from reroom.invert.export import window_power
+
+    basis = CubemapBasis(4)
+    cells = np.random.default_rng(0).uniform(0.5, 2.0, (basis.size, 3))
+    n_in = np.array([0.0, 1.0, 0.0])
+    flat = window_power(cells, basis, n_in, 1.5)
+    twice = window_power(cells, basis, n_in, 1.5, direction_weight=lambda d: np.full(len(d), 2.0))
+    np.testing.assert_allclose(twice, 2.0 * flat, rtol=1e-12)
+    # A weight of mean 1 over each cell but larger where the cosine is: more flux.
+    tilted = window_power(cells, basis, n_in, 1.5, direction_weight=lambda d: 2.0 * np.abs(d[:, 1]))
+    assert np.all(tilted > flat)

@@ -122,16 +122,26 @@ def _sphere_directions(n: int, seed: int = 0) -> np.ndarray:
 
 
 def window_power(
-    cells: np.ndarray, basis: CubemapBasis, normal: np.ndarray, area: float, samples: int = 200000
+    cells: np.ndarray,
+    basis: CubemapBasis,
+    normal: np.ndarray,
+    area: float,
+    samples: int = 200000,
+    direction_weight=None,
 ) -> np.ndarray:
     """Flux entering through a window whose distant light is ``cells``.
 
     ``cells[j]`` is the radiance arriving from outside along the directions of cell ``j``
-    (a ray from the room leaving in direction ``d`` sees ``cells[cell_of(d)]``); the flux
-    is ``A * integral L(d) max(0, -d . n_in) dw``, by ``samples`` seeded directions.
+    (a ray from the room leaving in direction ``d`` sees ``cells[cell_of(d)]``), times
+    ``direction_weight(d)`` when the cells are spread by a pattern (a captured view,
+    :class:`reroom.invert.window_env.WindowView`); the flux is ``A * integral L(d)
+    max(0, -d . n_in) dw``, by ``samples`` seeded directions.
     """
     d = _sphere_directions(samples)
     cos = np.maximum(-(d @ np.asarray(normal, float)), 0.0)
+    if direction_weight is not None:
+        out = cos > 0
+        cos[out] = cos[out] * np.asarray(direction_weight(d[out]), np.float64)
     j = basis.cell_of(d)
     return area * 4 * np.pi / samples * np.tensordot(cos, np.asarray(cells)[j], axes=(0, 0))
 
@@ -513,7 +523,20 @@ def light_entries(
                 e["distribution"]["photo_shapes"] = info["photo_shapes"]
             if "view" in info:  # InvertOptions.window_view_hdri
                 e["distribution"]["view"] = info["view"]
-            e["power"] = window_power(cells, basis, n_in, _window_area(g)).tolist()
+            weight = None
+            if "view" in info:  # the cells are spread by the captured view (window_view_hdri)
+                from reroom.invert.window_env import WindowView
+                from reroom.render.emitters import load_hdri
+
+                weight = WindowView.from_image(
+                    load_hdri(info["view"]["hdri"]),
+                    basis,
+                    n_in,
+                    float(info["view"].get("rotation_deg", 0.0)),
+                ).weight(basis)
+            e["power"] = window_power(
+                cells, basis, n_in, _window_area(g), direction_weight=weight
+            ).tolist()
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)
                 write_exr(out / f"window_{block.name}_cells.exr", ll)
