@@ -11,6 +11,14 @@ distribution error) under a header with the setting and the invert's wall time::
 
 ``RUN`` must hold a ground truth (a synthetic scan run with ``bench_run.py --scan``).
 Everything here is evaluation; the estimate never reads ``ground_truth/``.
+
+``--capture-window-view PATH [--capture-scale S]`` first plays the photographer who takes
+an HDRI at the window: it writes the scene's true window HDRI, times ``S`` (any overall
+scale: only the pattern is used), to ``PATH``, an input that a sweep entry then names
+(docs/invert.md, session 19)::
+
+    python benchmarks/bench_invert_sweep.py RUN - window_view_hdri=/tmp/view.exr \
+        --capture-window-view /tmp/view.exr
 """
 
 from __future__ import annotations
@@ -44,12 +52,36 @@ def sweep_dir(run: Path, work: Path, setting: str) -> Path:
     return d
 
 
+def capture_window_view(run: Path, path: Path, scale: float) -> float:
+    """Write the run's first true window HDRI, times ``scale``, to ``path``; its rotation."""
+    import json
+
+    import numpy as np
+
+    from reroom.io.images import read_exr, write_exr
+
+    gt = json.loads((run / "ground_truth" / "ground_truth.json").read_text())
+    light = next(x for x in gt["lights"] if x["type"] == "window")
+    scene = run / "ground_truth" / "scene"
+    img = read_exr(scene / light["hdri_file"])[..., :3] * float(light.get("scale", 1.0))
+    write_exr(path, (scale * img).astype(np.float32))
+    return float(light.get("rotation_deg", 0.0))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("run", type=Path, help="a finished `reroom run` folder with ground truth")
     ap.add_argument("settings", nargs="+", help="NAME=VALUE[,NAME=VALUE...]; '-' = defaults")
     ap.add_argument("--work", type=Path, default=Path("/tmp/reroom_sweep"))
+    ap.add_argument("--capture-window-view", type=Path, default=None, metavar="PATH")
+    ap.add_argument("--capture-scale", type=float, default=0.37)
     args = ap.parse_args()
+    if args.capture_window_view is not None:
+        rot = capture_window_view(args.run, args.capture_window_view, args.capture_scale)
+        print(
+            f"wrote {args.capture_window_view} (the true window HDRI x {args.capture_scale}; "
+            f"rotation {rot} deg: pass window_view_rotation_deg={rot} if not 0)"
+        )
     reroom = Path(sys.executable).with_name("reroom")
     for setting in args.settings:
         pairs = [] if setting == "-" else [p for p in setting.split(",") if p]
