@@ -282,16 +282,10 @@ def environment_cells(hdri: str | Path, basis: Any, samples: int = 200_000) -> n
     uniform directions (the portal's lat-long convention, no rotation).
     """
     from reroom.data import hdri_path
-    from reroom.render.emitters import latlong_lookup, load_hdri
+    from reroom.invert.window_env import map_cell_means
+    from reroom.render.emitters import load_hdri
 
-    d = _fibonacci_sphere(samples)
-    cell = basis.cell_of(d)
-    count = np.bincount(cell, minlength=basis.size).astype(float)
-    vals = latlong_lookup(load_hdri(hdri_path(str(hdri))), d)
-    out = np.stack(
-        [np.bincount(cell, weights=vals[:, c], minlength=basis.size) for c in range(3)], 1
-    )
-    return out / np.maximum(count, 1.0)[:, None]
+    return map_cell_means(load_hdri(hdri_path(str(hdri))), basis, _fibonacci_sphere(samples))
 
 
 def swap_window_environment(

@@ -526,13 +526,9 @@ def light_entries(
             weight = None
             if "view" in info:  # the cells are spread by the captured view (window_view_hdri)
                 from reroom.invert.window_env import WindowView
-                from reroom.render.emitters import load_hdri
 
-                weight = WindowView.from_image(
-                    load_hdri(info["view"]["hdri"]),
-                    basis,
-                    n_in,
-                    float(info["view"].get("rotation_deg", 0.0)),
+                weight = WindowView.load(
+                    info["view"]["hdri"], basis, n_in, float(info["view"].get("rotation_deg", 0.0))
                 ).weight(basis)
             e["power"] = window_power(
                 cells, basis, n_in, _window_area(g), direction_weight=weight
@@ -624,12 +620,10 @@ def window_photo_maps(
         # A captured view of the window spreads each solved cell (its pattern, not the
         # photos', which clip the view): the transfer was weighted by the same pattern.
         from reroom.invert.window_env import WindowView
-        from reroom.render.emitters import load_hdri
 
-        image = load_hdri(view[0])
         out = {}
         for name, opening, cells in wins:
-            wv = WindowView.from_image(image, basis, opening.normal, view[1])
+            wv = WindowView.load(view[0], basis, opening.normal, view[1])
             out[name] = (
                 wv.environment(cells, basis, height),
                 {"view_hdri": str(view[0]), "rotation_deg": view[1], "height": height},

@@ -449,18 +449,17 @@ def _window_view(options: InvertOptions, basis, opening):
     """The :class:`~reroom.invert.window_env.WindowView` of ``window_view_hdri`` for one
     window; :class:`~reroom.errors.ScanError` naming the file if it cannot be read."""
     from reroom.invert.window_env import WindowView
-    from reroom.render.emitters import load_hdri
 
     path = Path(str(options.window_view_hdri))
     try:
-        image = load_hdri(path)
+        view = WindowView.load(
+            path, basis, opening.normal, options.window_view_rotation_deg, seed=options.seed
+        )
     except (OSError, ValueError, RuntimeError) as exc:
         raise ScanError(path, f"cannot read the window's view HDRI ({exc})") from exc
-    if not np.isfinite(image).all() or not (image.max() > 0):
+    if not np.isfinite(view.image).all() or not (view.image.max() > 0):
         raise ScanError(path, "the window's view HDRI is black or not finite")
-    return WindowView.from_image(
-        image, basis, opening.normal, options.window_view_rotation_deg, seed=options.seed
-    )
+    return view
 
 
 def _window_photo_priors(

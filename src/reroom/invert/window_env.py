@@ -42,6 +42,7 @@ look as before.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,6 +64,7 @@ __all__ = [
     "latlong_directions",
     "latlong_lookup",
     "latlong_solid_angles",
+    "map_cell_means",
     "observe_windows",
     "photo_environments",
     "refine_cells",
@@ -559,6 +561,34 @@ def latlong_lookup(values: np.ndarray):
     return lookup
 
 
+@functools.lru_cache(maxsize=2)
+def _read_view(path: str, mtime_ns: int) -> np.ndarray:
+    """A view HDRI's pixels; cached: the solve and the outputs of one run read it again."""
+    from reroom.render.emitters import load_hdri
+
+    return load_hdri(path)
+
+
+def map_cell_means(
+    image: np.ndarray, basis: CubemapBasis, directions: np.ndarray, rotation_deg: float = 0.0
+) -> np.ndarray:
+    """``(basis.size, 3)`` mean of a lat-long map over the ``directions`` in each cube cell.
+
+    The map is looked up bilinearly (:func:`reroom.render.emitters.latlong_lookup`, the
+    portal's convention); a cell no direction falls in gets 0.
+    """
+    from reroom.render.emitters import latlong_lookup as lookup
+
+    d = np.asarray(directions, np.float64)
+    cell = basis.cell_of(d)
+    vals = lookup(image, d, rotation_deg)
+    count = np.bincount(cell, minlength=basis.size).astype(float)
+    sums = np.stack(
+        [np.bincount(cell, weights=vals[:, c], minlength=basis.size) for c in range(3)], 1
+    )
+    return sums / np.maximum(count, 1.0)[:, None]
+
+
 @dataclass
 class WindowView:
     """A captured HDRI of the view outside a window, for its pattern within each cube cell.
@@ -587,19 +617,27 @@ class WindowView:
         samples: int = 200_000,
         seed: int = 0,
     ) -> WindowView:
-        from reroom.render.emitters import latlong_lookup as lookup
-
         rng = np.random.default_rng(seed)
         d = rng.standard_normal((samples, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         d = d[d @ np.asarray(inward_normal, float) < 0]
-        cell = basis.cell_of(d)
-        vals = lookup(image, d, rotation_deg)
-        count = np.bincount(cell, minlength=basis.size).astype(float)
-        sums = np.stack(
-            [np.bincount(cell, weights=vals[:, c], minlength=basis.size) for c in range(3)], 1
+        means = map_cell_means(image, basis, d, rotation_deg)
+        return cls(np.asarray(image), float(rotation_deg), means)
+
+    @classmethod
+    def load(
+        cls,
+        path: str | Path,
+        basis: CubemapBasis,
+        inward_normal: np.ndarray,
+        rotation_deg: float = 0.0,
+        seed: int = 0,
+    ) -> WindowView:
+        """:meth:`from_image` of an EXR file (read once per file and modification time)."""
+        p = Path(path)
+        return cls.from_image(
+            _read_view(str(p), p.stat().st_mtime_ns), basis, inward_normal, rotation_deg, seed=seed
         )
-        return cls(np.asarray(image), float(rotation_deg), sums / np.maximum(count, 1.0)[:, None])
 
     def _ratio(self, directions: np.ndarray, basis: CubemapBasis) -> np.ndarray:
         from reroom.render.emitters import latlong_lookup as lookup
