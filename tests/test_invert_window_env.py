@@ -435,6 +435,16 @@ def test_pipeline_rejects_an_unreadable_view_hdri(tmp_path):
     bad.write_text("not an image")
     with pytest.raises(ScanError, match="view.exr"):
         _window_view(InvertOptions(window_view_hdri=str(bad)), CubemapBasis(4), WINDOW)
+    from reroom.io.images import write_exr
+
+    for name, img in (
+        ("black.exr", np.zeros((8, 16, 3))),
+        ("nan.exr", np.full((8, 16, 3), np.nan)),
+    ):
+        path = tmp_path / name
+        write_exr(path, img.astype(np.float32))
+        with pytest.raises(ScanError, match=f"{name}.*black or not finite"):
+            _window_view(InvertOptions(window_view_hdri=str(path)), CubemapBasis(4), WINDOW)
 
 
 def test_window_power_counts_the_cells_spread():
