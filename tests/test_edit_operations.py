@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +128,13 @@ def scan(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _probe(scene: dict, points: np.ndarray, normal=(0.0, 0.0, 1.0), spp: int = 4) -> np.ndarray:
     pts = np.atleast_2d(np.asarray(points, float))
     return bake_vertex_radiance(scene, pts, np.tile(normal, (len(pts), 1)), spp=spp).radiance
+
+
+def _direct_on(p: np.ndarray, normal: np.ndarray, lamp: np.ndarray = LAMP, rho: float = RHO):
+    """``rho / pi * I cos / d^2`` of the unit isotropic lamp at points facing ``normal``."""
+    d = lamp - np.atleast_2d(p)
+    r2 = (d**2).sum(1)
+    return rho / math.pi * (d @ normal) / np.sqrt(r2) / r2
 
 
 def _direct(p: np.ndarray, lamp: np.ndarray = LAMP, intensity: float = 1.0, rho: float = RHO):
@@ -246,6 +254,34 @@ def test_repaint_color_doubles_direct_light_on_that_label_only(scan: Path) -> No
     ratio_wall = _probe(painted, wall, (-1.0, 0.0, 0.0)) / _probe(base, wall, (-1.0, 0.0, 0.0))
     np.testing.assert_allclose(ratio_floor, 2.0, rtol=1e-3)
     np.testing.assert_allclose(ratio_wall, 1.0, rtol=1e-3)
+
+
+def test_furnishings_render_with_one_albedo_per_object(scan: Path, tmp_path: Path) -> None:
+    """The block (unlabelled: a furnishing) gets its seen vertices' median albedo where
+    a vertex is far off it or unseen, not the room's median (reroom.edit.objects)."""
+    copy = tmp_path / "scan"
+    shutil.copytree(scan, copy)
+    mesh = trimesh.load(copy / "invert" / "albedo.ply", process=False)
+    v = np.asarray(mesh.vertices)
+    n_room = len(box_room(SIZE, spacing=0.25, obstacle=False)[0])
+    block = np.arange(len(v)) >= n_room
+    albedo = np.full((len(v), 3), RHO, np.float32)
+    albedo[block] = 0.2
+    top = np.flatnonzero(block & (v[:, 2] > 0.8 - 1e-6))
+    hot = top[np.argmin(np.linalg.norm(v[top, :2] - BLOCK, axis=1))]
+    albedo[hot] = 0.9  # a crease vertex solved 4.5 times too bright
+    side = block & (v[:, 0] < BLOCK[0] - 0.3 + 1e-6)  # the face toward the lamp, unseen
+    albedo[side] = -1.0
+    write_ply(copy / "invert" / "albedo.ply", mesh, {"albedo": albedo})
+    scene = edited_scene(copy, [], max_depth=2, work_dir=tmp_path / "work")
+    at_hot = v[hot][None, :] + [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(_probe(scene, at_hot)[:, 0], _direct(at_hot, rho=0.2), rtol=5e-3)
+    face = np.array([[BLOCK[0] - 0.3, BLOCK[1] + 0.05, 0.5]])
+    np.testing.assert_allclose(
+        _probe(scene, face, (-1.0, 0.0, 0.0))[:, 0],
+        _direct_on(face, np.array([-1.0, 0.0, 0.0]), rho=0.2),
+        rtol=5e-3,
+    )
 
 
 def test_texture_repaint_follows_the_texture_mean(scan: Path, tmp_path: Path) -> None:

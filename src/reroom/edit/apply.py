@@ -54,6 +54,7 @@ import trimesh
 
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
 from reroom.edit.model import DEFAULT_MAX_DEPTH
+from reroom.edit.objects import object_albedo
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.jsonfile import read_json
@@ -701,7 +702,13 @@ def edited_scene(
             inserts.append(op)
 
     # Per-vertex albedo with colour repaints (the model scene reads it from the work doc).
+    # The furnishings first get one robust albedo per object (reroom.edit.objects): their
+    # per-vertex solve is too bright along creases and contacts, and unseen where hidden.
     albedo = model.albedo.copy()
+    if model.labels is not None:
+        albedo, _ = object_albedo(
+            model.vertices, model.faces, albedo, model.known, model.labels == _OTHER
+        )
     textured: dict[str, dict[str, Any]] = {}
     for target, op in paint.items():
         if target in _LABEL_IDS:
