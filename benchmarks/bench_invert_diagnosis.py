@@ -31,7 +31,9 @@ reads ``ground_truth/``, which the estimate never does.
     which light's detection or localization costs the albedos and the other lights.
 ``--indirect``
     ``E_ind`` from the true radiance (512 hemisphere rays) against the path tracer's
-    indirect irradiance ``pi (L - L_direct) / rho``, ``L_direct`` rendered at depth 2.
+    indirect irradiance ``pi (L - L_direct) / rho``, ``L_direct`` rendered at depth 2;
+    and ``E_ind`` from the scan's HDR radiance (divided by its radiance scale ``k``) on
+    the receivers both runs share, per channel.
 ``--bands``
     HDR / true radiance per band of true radiance (relative to the overall ratio of sums),
     binned by ``--bin-by PLY`` (an independent truth sample, so that the truth's own noise
@@ -805,12 +807,34 @@ def indirect(scan: Path, work: Path) -> None:
     rho = np.maximum(true_albedo[rows], 1e-3)
     e_true = np.pi * (true_rad[rows] - direct) / rho
     e_ours = res.problem.indirect
-    print("\n| cluster | receivers | sum E_ind ours / path tracer | indirect share |")
-    print("|---|---|---|---|")
+    # The same with the scan's own HDR radiance (the pipeline's input), in the truth's
+    # units (divided by the evaluation's radiance scale k), on the receivers both share.
+    e_hdr = np.full_like(e_ours, np.nan)
+    if (scan / "hdr" / "hdr_mesh.ply").is_file():
+        out = work / "indirect_hdr_radiance"
+        hres = _invert(scan, out, None)
+        k = np.asarray(evaluate_invert(scan, out)["radiance_scale"], float)
+        at = {int(v): i for i, v in enumerate(hres.problem_vertices)}
+        for i, v in enumerate(rows):
+            j = at.get(int(v))
+            if j is not None:
+                e_hdr[i] = hres.problem.indirect[j] / k
+    print(
+        "\n| cluster | receivers | sum E_ind ours / path tracer: true radiance "
+        "| HDR radiance / k (receivers) | indirect share |"
+    )
+    print("|---|---|---|---|---|")
     for name, lab in CLUSTERS.items():
         m = label[rows] == lab
         share = e_true[m].sum() / (np.pi * true_rad[rows][m] / rho[m]).sum()
-        print(f"| {name} | {m.sum()} | {e_ours[m].sum() / e_true[m].sum():.3f} | {share:.2f} |")
+        h = m & np.isfinite(e_hdr).all(axis=1)
+        hdr = (
+            " / ".join(f"{x:.3f}" for x in e_hdr[h].sum(0) / e_true[h].sum(0)) + f" ({h.sum()})"
+            if h.any()
+            else "-"
+        )
+        ratio = " / ".join(f"{x:.3f}" for x in e_ours[m].sum(0) / e_true[m].sum(0))
+        print(f"| {name} | {m.sum()} | {ratio} | {hdr} | {share:.2f} |")
 
 
 def bands(scan: Path, bin_by: Path | None) -> None:
