@@ -239,6 +239,57 @@ def test_per_vertex_albedo_flags_nonphysical_values() -> None:
     assert albedo[:10].max() > 1.0  # kept, not clipped
 
 
+def test_per_vertex_albedo_divides_by_the_footprint_irradiance() -> None:
+    """A crease vertex: its point irradiance is a tenth of its neighbours', while its
+    radiance, like the photos', is the mean over the pixels around it (session 20)."""
+    from reroom.invert.solve import footprint_operator
+
+    problem, truth = synthetic_problem(600, lights=("area", "point"), seed=11)
+    result = solve_lighting(problem, EXACT)
+    n = len(problem.radiance)
+    # A fan of 5 triangles around vertex 0 over vertices 0-5; the rest stand alone.
+    verts = np.zeros((n, 3))
+    ang = np.linspace(0.0, 2 * np.pi, 6)[:-1]
+    verts[1:6, :2] = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    faces = np.array([[0, i, i % 5 + 1] for i in range(1, 6)])
+    op = footprint_operator(faces, np.arange(n), n, verts, rings=1)
+    np.testing.assert_allclose(np.asarray(op.sum(axis=1)).ravel(), 1.0)
+    assert op[0].nnz == 6 and op[10].nnz == 1  # the fan's centre sees its ring
+    # The plain ratio at each vertex, then the same with the footprint's irradiance:
+    # where the irradiance is uniform over the footprint nothing changes.
+    plain, _ = per_vertex_albedo(
+        problem.radiance, problem.indirect, problem.transfer, problem.lights, result
+    )
+    identity = footprint_operator(faces, np.arange(n), n, verts, rings=0)
+    same, _ = per_vertex_albedo(
+        problem.radiance,
+        problem.indirect,
+        problem.transfer,
+        problem.lights,
+        result,
+        footprint=identity,
+    )
+    np.testing.assert_allclose(same, plain)
+    # Vertex 0's point irradiance cut to a tenth (the crease), its radiance the
+    # footprint's mean: the plain ratio is far too high, the footprint's right.
+    from reroom.invert.solve import model_irradiance
+
+    e = model_irradiance(problem.indirect, problem.transfer, problem.lights, result)
+    rho = truth.albedo[problem.cluster]
+    e_crease = e.copy()
+    e_crease[0] *= 0.1
+    mean_e = np.asarray(op @ e_crease)
+    radiance = problem.radiance.copy()
+    radiance[0] = rho[0] / np.pi * mean_e[0]
+    # The crease as the model sees it: vertex 0's transfer row and E_ind cut to a tenth.
+    cut = sp.diags(np.where(np.arange(n) == 0, 0.1, 1.0))
+    crease = (radiance, problem.indirect * (e_crease / e), (cut @ problem.transfer).tocsr())
+    got_plain, _ = per_vertex_albedo(*crease, problem.lights, result)
+    assert np.all(got_plain[0] > 2.0 * rho[0])
+    got, _ = per_vertex_albedo(*crease, problem.lights, result, footprint=op)
+    np.testing.assert_allclose(got[0], rho[0], rtol=1e-6)
+
+
 def _room_with_a_tube(phi_bins: int, fold: bool = True, seed: int = 12):
     """Eq. 5.6 in a closed 4 x 3 x 2.6 m room lit by a ray-traced line light (2D bins)."""
     import trimesh

@@ -70,6 +70,7 @@ __all__ = [
     "LightBlock",
     "SolveOptions",
     "SolveResult",
+    "footprint_operator",
     "indirect_weights",
     "model_irradiance",
     "per_vertex_albedo",
@@ -1194,6 +1195,67 @@ def model_irradiance(
     return np.asarray(indirect + (transfer @ intens if len(intens) else 0.0))
 
 
+def footprint_operator(
+    faces: np.ndarray,
+    rows: np.ndarray,
+    n_vertices: int,
+    vertices: np.ndarray,
+    rings: int = 1,
+) -> sp.csr_matrix:
+    """Averaging over each row vertex's neighbourhood, as a sparse ``(n, n)`` operator.
+
+    Row ``i`` (mesh vertex ``rows[i]``) averages the row vertices within ``rings`` mesh
+    edges of it, itself included, each weighted by its share of the area around it (a
+    third of its faces' areas). Vertices that are not rows take no part.
+
+    Parameters
+    ----------
+    faces : ndarray of int, shape (m, 3)
+        Mesh triangles.
+    rows : ndarray of int, shape (n,)
+        The vertices that have a value (e.g. the receivers), in value order.
+    n_vertices : int
+        Vertices of the mesh.
+    vertices : ndarray, shape (n_vertices, 3)
+        Their positions (for the area weights).
+    rings : int
+        Neighbourhood size in mesh edges (0: the identity).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (n, n)
+        Rows sum to 1.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 0]], float)
+    >>> op = footprint_operator(np.array([[0, 1, 2]]), np.array([0, 1, 3]), 4, v)
+    >>> np.round(op.toarray(), 2).tolist()
+    [[0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.0, 0.0, 1.0]]
+    """
+    rows = np.asarray(rows, np.int64)
+    n = len(rows)
+    if rings <= 0:
+        return sp.identity(n, format="csr")
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    vertices = np.asarray(vertices, np.float64)
+    cross = np.cross(
+        vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]
+    )
+    area = np.zeros(n_vertices)
+    np.add.at(area, faces.ravel(), np.repeat(0.5 * np.linalg.norm(cross, axis=1) / 3.0, 3))
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    adj = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), (n_vertices,) * 2)
+    adj = ((adj + adj.T + sp.identity(n_vertices)) > 0).astype(np.float64).tocsr()
+    reach = adj
+    for _ in range(rings - 1):
+        reach = ((reach @ adj) > 0).astype(np.float64).tocsr()
+    # Vertices with no area (isolated) still count themselves.
+    weight = np.where(area[rows] > 0, area[rows], 1e-12)
+    op = reach[rows][:, rows] @ sp.diags(weight)
+    return (sp.diags(1.0 / np.asarray(op.sum(axis=1)).ravel()) @ op).tocsr()
+
+
 def per_vertex_albedo(
     radiance: np.ndarray,
     indirect: np.ndarray,
@@ -1201,6 +1263,7 @@ def per_vertex_albedo(
     lights: list[LightBlock],
     result: SolveResult,
     min_irradiance: float = 1e-9,
+    footprint: sp.csr_matrix | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Albedo of each vertex from the solved lighting (the last step of thesis 5.4).
 
@@ -1221,6 +1284,11 @@ def per_vertex_albedo(
         The solved lighting.
     min_irradiance : float
         Irradiance below which the albedo is undetermined (NaN).
+    footprint : sparse matrix, shape (n, n), optional
+        Row-stochastic averaging of the irradiance over each vertex's surroundings
+        (:func:`footprint_operator`), applied before the division: ``Lbar`` is a mean
+        over the pixels around a vertex, so the irradiance it is divided by should be
+        one too.
 
     Returns
     -------
@@ -1230,6 +1298,8 @@ def per_vertex_albedo(
         Vertices with some channel above 1.
     """
     irradiance = model_irradiance(indirect, transfer, lights, result)
+    if footprint is not None:
+        irradiance = np.asarray(footprint @ irradiance)
     with np.errstate(divide="ignore", invalid="ignore"):
         albedo = np.where(irradiance > min_irradiance, np.pi * radiance / irradiance, np.nan)
     nonphysical = np.any(albedo > 1.0, axis=1)
