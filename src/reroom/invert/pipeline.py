@@ -213,7 +213,7 @@ class InvertOptions:
         a few centimetres of surface; along creases and floor contacts the point's
         irradiance is far below that area's, and the plain ratio came out several times
         too high (session 20: on `furnished` the 90th-percentile per-vertex error of the
-        furnishings fell from 199 % to 91 % with one ring).
+        seen furnishings fell from 192 % to 95 % with one ring).
     refine_recess : float
         Metres a refined point light may rise above the ceiling plane (the median height
         of the ceiling's clustered receivers), into a recess. Kept below it, the fit
