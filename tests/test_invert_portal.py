@@ -140,3 +140,19 @@ def test_portal_direction_weight_scales_each_direction():
     assert left.any() and right.any()
     np.testing.assert_allclose(east[left], flat[left], rtol=1e-12)
     assert np.all(east[right] == 0) and np.any(flat[right] > 0)
+
+
+def test_window_axes_rounded_in_a_file_are_made_perpendicular_and_skewed_ones_refused():
+    """A window of a rotated room, its axes rounded to 6 decimals as lights.json keeps
+    them (the real slambook2 scan's window failed this check before session 20)."""
+    from reroom.errors import ReroomError
+
+    u = np.round([-0.154928, 0.31384, -0.00138], 6)
+    v = np.round([-0.002343, -0.000189, 0.219987], 6)
+    assert abs(u @ v) / np.linalg.norm(u) / np.linalg.norm(v) > 1e-6  # off by rounding
+    w = WindowOpening("w", [0, 7, 0.7], u, v, [-0.9, -0.44, -0.01])
+    assert abs(w.half_u @ w.half_v) < 1e-15
+    np.testing.assert_allclose(w.half_v, v, atol=1e-6)  # moved by the rounding only
+    np.testing.assert_array_equal(w.half_u, u)
+    with pytest.raises(ReroomError, match="not perpendicular"):
+        WindowOpening("skewed", [0, 0, 1.0], [0.5, 0, 0], [0.05, 0.3, 0], [0, 0, -1.0])

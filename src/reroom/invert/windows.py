@@ -14,7 +14,11 @@ import numpy as np
 
 from reroom.errors import ReroomError
 
-__all__ = ["WindowOpening", "rays_through_windows"]
+__all__ = ["PERPENDICULAR_TOLERANCE", "WindowOpening", "rays_through_windows"]
+
+#: Largest cosine between a window's two half axes that is taken for rounding and made
+#: exact; above it the opening is not a rectangle.
+PERPENDICULAR_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -48,8 +52,15 @@ class WindowOpening:
         lu, lv, ln = (np.linalg.norm(x) for x in (self.half_u, self.half_v, self.normal))
         if lu == 0 or lv == 0 or ln == 0:
             raise ReroomError(f"window {self.name!r}: zero-length half axis or normal")
-        if abs(self.half_u @ self.half_v) > 1e-6 * lu * lv:
-            raise ReroomError(f"window {self.name!r}: half_u and half_v are not perpendicular")
+        # Files store the axes rounded (lights.json keeps 6 decimals), which on a rotated
+        # room leaves them off perpendicular by ~1e-6 relative: accept up to 1e-3 (0.06
+        # degrees) and make them exact; anything more is a skewed opening, an error.
+        if abs(self.half_u @ self.half_v) > PERPENDICULAR_TOLERANCE * lu * lv:
+            raise ReroomError(
+                f"window {self.name!r}: half_u and half_v are not perpendicular "
+                f"(cosine {self.half_u @ self.half_v / (lu * lv):.2g})"
+            )
+        self.half_v = self.half_v - (self.half_v @ self.half_u) / lu**2 * self.half_u
         self.normal = self.normal / ln
 
     @property
