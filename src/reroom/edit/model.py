@@ -94,11 +94,11 @@ def fill_unknown_albedo(albedo: np.ndarray, faces: np.ndarray, known: np.ndarray
     Vertices no photo saw (a sofa's back and underside, the wall behind a cabinet) are
     given the harmonic interpolation of the known albedos over the mesh's edges: each
     unknown vertex the mean of its neighbours, the known ones fixed. An unseen side of an
-    object so takes that object's colour rather than a room-wide one. (The median of
+    object so takes its neighbours' colour rather than a room-wide one. (The median of
     every known vertex, the fill before session 20, is a wall's colour: on `furnished` it
-    painted half the dark-blue sofa, the cabinet, table and chairs off-white, which made
-    the room's mean albedo 8-12 % too high and every render's multi-bounce light with it.)
-    A connected part of the mesh with no known vertex takes the median of the known ones.
+    painted the unseen half of the dark-blue sofa off-white. The furnishings' own seen
+    vertices were the larger error there, see :mod:`reroom.edit.objects`.) A connected
+    part of the mesh with no known vertex takes the median of the known ones.
 
     Parameters
     ----------
@@ -115,35 +115,19 @@ def fill_unknown_albedo(albedo: np.ndarray, faces: np.ndarray, known: np.ndarray
         ``albedo`` at the known vertices, the fill elsewhere; within the known values'
         range per channel (a harmonic interpolation has no new extremes).
     """
-    # Written with scipy's sparse solver: no mesh library inpaints vertex attributes.
     import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-    from scipy.sparse.linalg import splu
+
+    from reroom.layout.meshops import harmonic_fill, vertex_adjacency
 
     albedo = np.asarray(albedo, np.float64)
     known = np.asarray(known, bool)
-    n = len(albedo)
-    out = albedo.copy()
     if not known.any():
-        out[:] = 0.5
-        return out
-    if known.all():
-        return out
+        return np.full_like(albedo, 0.5)
+    # Start every unknown vertex at the median: parts with nothing known keep it.
+    start = np.where(known[:, None], albedo, np.median(albedo[known], axis=0))
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    edges = edges[edges[:, 0] != edges[:, 1]]
-    w = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    w = ((w + w.T) > 0).astype(np.float64)
-    _, comp = connected_components(w, directed=False)
-    has_known = np.bincount(comp, weights=known.astype(float), minlength=comp.max() + 1) > 0
-    free = ~known & has_known[comp]
-    out[~known & ~has_known[comp]] = np.median(albedo[known], axis=0)
-    if free.any():
-        lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
-        a = lap[free][:, free].tocsc()
-        b = -(lap[free][:, known] @ albedo[known])
-        out[free] = splu(a).solve(np.ascontiguousarray(b))
-    return out
+    edges = sp.triu(vertex_adjacency(faces, len(albedo))).tocoo()
+    return harmonic_fill(start, known, np.stack([edges.row, edges.col], axis=1))
 
 
 def model_scene(

@@ -94,6 +94,8 @@ def object_albedo(
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
+    from reroom.layout.meshops import vertex_adjacency
+
     vertices = np.asarray(vertices, np.float64)
     albedo = np.asarray(albedo, np.float64).copy()
     known = np.asarray(known, bool).copy()
@@ -102,14 +104,13 @@ def object_albedo(
     idx = np.flatnonzero(objects)
     if len(idx) == 0:
         return albedo, known
-    faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    edges = edges[objects[edges[:, 0]] & objects[edges[:, 1]]]
+    # The mesh's edges between two object vertices, and the proximity pairs.
+    keep = sp.diags(objects.astype(np.float64))
+    graph = keep @ vertex_adjacency(np.asarray(faces, np.int64).reshape(-1, 3), n) @ keep
     if merge_radius > 0:
-        near = cKDTree(vertices[idx]).query_pairs(merge_radius, output_type="ndarray")
-        edges = np.concatenate([edges, idx[near]])
-    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, comp = connected_components(graph.tocsr(), directed=False)
+        near = idx[cKDTree(vertices[idx]).query_pairs(merge_radius, output_type="ndarray")]
+        graph = graph + sp.coo_matrix((np.ones(len(near)), (near[:, 0], near[:, 1])), (n, n))
+    _, comp = connected_components(sp.csr_matrix(graph), directed=False)
     lum = albedo @ _LUMA
     for c in np.unique(comp[idx]):
         members = objects & (comp == c)

@@ -19,6 +19,7 @@ from reroom.io.atomic import atomic_path, atomic_write_json
 from reroom.io.ies import IESProfile, write_ies
 from reroom.io.images import write_exr
 from reroom.io.mesh import write_ply
+from reroom.layout.meshops import harmonic_fill
 
 __all__ = [
     "area_light_power",
@@ -260,34 +261,6 @@ def _window_area(g: dict) -> float:
     return float(4 * np.linalg.norm(np.asarray(g["half_u"], float)) * np.linalg.norm(g["half_v"]))
 
 
-def _harmonic_fill(values: np.ndarray, fixed: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """``values`` with the free (not ``fixed``) nodes replaced by their harmonic interpolation.
-
-    The graph Laplacian of ``pairs`` is solved for the free nodes with the fixed ones as
-    boundary values (each free node the mean of its neighbours): on a chain this is the
-    linear interpolation between fixed nodes and the nearest fixed value beyond the last.
-    Free nodes whose connected component has no fixed node keep their values.
-    """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-    from scipy.sparse.linalg import spsolve
-
-    n = len(values)
-    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
-    w = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-    w = w + w.T
-    lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
-    _, comp = connected_components(w, directed=False)
-    has_fixed = np.bincount(comp, weights=fixed.astype(float), minlength=comp.max() + 1) > 0
-    solve = ~fixed & has_fixed[comp]
-    out = values.copy()
-    if solve.any():
-        a = lap[solve][:, solve].tocsc()
-        b = -(lap[solve][:, fixed] @ values[fixed])
-        out[solve] = np.atleast_1d(spsolve(a, b))
-    return out
-
-
 def fill_poorly_seen(
     profile: np.ndarray,
     support: np.ndarray,
@@ -339,7 +312,7 @@ def fill_poorly_seen(
         idx = np.arange(len(profile))
         filled = np.where(well, profile, np.interp(idx, idx[well], profile[well]))
     else:
-        filled = _harmonic_fill(profile, well, adjacency)
+        filled = harmonic_fill(profile, well, adjacency)
     if unseen == "fill":
         return filled
     return np.where(support > 1e-12 * top, filled, 0.0)

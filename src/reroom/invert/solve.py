@@ -63,6 +63,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from reroom.errors import ReroomError
+from reroom.layout.meshops import vertex_adjacency, vertex_areas
 
 __all__ = [
     "LIGHT_KINDS",
@@ -1238,15 +1239,10 @@ def footprint_operator(
     if rings <= 0:
         return sp.identity(n, format="csr")
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    vertices = np.asarray(vertices, np.float64)
-    cross = np.cross(
-        vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]
+    area = vertex_areas(np.asarray(vertices, np.float64), faces)
+    adj = (vertex_adjacency(faces, n_vertices) + sp.identity(n_vertices, format="csr")).astype(
+        np.float64
     )
-    area = np.zeros(n_vertices)
-    np.add.at(area, faces.ravel(), np.repeat(0.5 * np.linalg.norm(cross, axis=1) / 3.0, 3))
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    adj = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), (n_vertices,) * 2)
-    adj = ((adj + adj.T + sp.identity(n_vertices)) > 0).astype(np.float64).tocsr()
     reach = adj
     for _ in range(rings - 1):
         reach = ((reach @ adj) > 0).astype(np.float64).tocsr()

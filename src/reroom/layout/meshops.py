@@ -1,4 +1,6 @@
-"""Mesh helpers the layout stage needs: normals, resolution, adjacency, graph morphology.
+"""Mesh helpers: normals, areas, resolution, adjacency, graph morphology, harmonic fill.
+
+Written for the layout stage; the later stages (inverse rendering, edits) use them too.
 
 All functions take plain arrays (``vertices (V, 3)``, ``faces (F, 3)``) so they work on
 any mesh, including ones built in tests.
@@ -60,6 +62,36 @@ def vertex_adjacency(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     a.setdiag(False)
     a.eliminate_zeros()
     return a
+
+
+def harmonic_fill(values: np.ndarray, fixed: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """``values`` with the free (not ``fixed``) nodes replaced by their harmonic interpolation.
+
+    The graph Laplacian of ``pairs`` (each pair of node indices one edge of weight 1;
+    give each edge once) is solved for the free nodes with the fixed ones as boundary
+    values (each free node the mean of its neighbours): on a chain this is the linear
+    interpolation between fixed nodes and the nearest fixed value beyond the last. Free
+    nodes whose connected component has no fixed node keep their values. ``values`` may
+    be ``(N,)`` or ``(N, C)`` (each column filled alike).
+    """
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.linalg import spsolve
+
+    n = len(values)
+    fixed = np.asarray(fixed, bool)
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    w = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    w = w + w.T
+    lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
+    _, comp = connected_components(w, directed=False)
+    has_fixed = np.bincount(comp, weights=fixed.astype(float), minlength=comp.max() + 1) > 0
+    solve = ~fixed & has_fixed[comp]
+    out = np.array(values, copy=True)
+    if solve.any():
+        a = lap[solve][:, solve].tocsc()
+        b = -(lap[solve][:, fixed] @ out[fixed])
+        out[solve] = np.atleast_1d(spsolve(a, b))
+    return out
 
 
 def dilate(mask: np.ndarray, adjacency: sp.csr_matrix, steps: int = 1) -> np.ndarray:
