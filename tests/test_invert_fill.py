@@ -111,3 +111,5 @@ def test_bad_fill_options_are_refused(tmp_path) -> None:
         run_invert(tmp_path, options=InvertOptions(unobserved_fill="harmonic"))
     with pytest.raises(ValueError, match="fill_albedo"):
         run_invert(tmp_path, options=InvertOptions(fill_albedo=1.5))
+    with pytest.raises(ValueError, match="albedo_footprint_rings"):
+        run_invert(tmp_path, options=InvertOptions(albedo_footprint_rings=-1))
