@@ -6,9 +6,9 @@ Part 1 (always): the solvers on synthetic problems with a known answer
 vertices: time, iterations, worst relative cluster-albedo error and worst relative L2
 error of the seen basis intensities.
 
-Part 2 (``--scan DIR [--true-radiance]``): the pipeline on a scan with hdr/, layout/,
-lights/ and ground truth, evaluated by :func:`reroom.invert.evaluate.evaluate_invert`
-against the issue's targets (albedo within 3 %, power within 5 %, point and line
+Part 2 (``--scan DIR [--true-radiance] [--scan-invert JSON]``): the pipeline on a scan
+with hdr/, layout/, lights/ and ground truth (other InvertOptions as JSON), evaluated
+by :func:`reroom.invert.evaluate.evaluate_invert` against the issue's targets (albedo within 3 %, power within 5 %, point and line
 distributions within 10 % relative L2).
 
 Part 3 (``--speed DIR``): ``reroom invert`` on a scan with hdr/, layout/ and lights/ (no
@@ -17,6 +17,7 @@ wall and CPU time per step, the ray budget, and the ratio to the 2016 paper's 15
 of inverse lighting and to the issue's 60 s target for transfer + solve.
 
     .venv/bin/python benchmarks/bench_invert.py [--n 20000] [--scan DIR] [--true-radiance]
+        [--scan-invert '{"albedo_footprint_rings": 0}']
     .venv/bin/python benchmarks/bench_invert.py --speed DIR --skip-solvers
 """
 
@@ -107,14 +108,14 @@ def _l2_text(light: dict) -> str:
     )
 
 
-def scan_table(scan: str, true_radiance: bool) -> None:
+def scan_table(scan: str, true_radiance: bool, options: dict | None = None) -> None:
     from reroom.invert.evaluate import evaluate_invert, run_invert_true_radiance
     from reroom.invert.pipeline import InvertOptions, run_invert
 
     out = os.path.join(scan, "invert_true" if true_radiance else "invert")
     t = time.perf_counter()
     run = run_invert_true_radiance if true_radiance else run_invert
-    result = run(scan, out, InvertOptions())
+    result = run(scan, out, InvertOptions(**(options or {})))
     dt = time.perf_counter() - t
     ev = evaluate_invert(scan, out)
     kind = "TRUE radiance (evaluation-only)" if true_radiance else "HDR radiance"
@@ -222,13 +223,18 @@ def main() -> None:
         default="{}",
         help="InvertOptions as JSON for --speed, e.g. '{\"window_samples\": 0}'",
     )
+    ap.add_argument(
+        "--scan-invert",
+        default="{}",
+        help="InvertOptions as JSON for --scan, e.g. '{\"albedo_footprint_rings\": 0}'",
+    )
     ap.add_argument("--skip-solvers", action="store_true", help="no part 1")
     args = ap.parse_args()
     if not args.skip_solvers:
         solver_table(args.n)
         huber_table(args.n)
     if args.scan:
-        scan_table(args.scan, args.true_radiance)
+        scan_table(args.scan, args.true_radiance, json.loads(args.scan_invert))
     if args.speed:
         speed_table(args.speed, options=json.loads(args.speed_invert))
 
