@@ -18,6 +18,9 @@ of inverse lighting and to the issue's 60 s target for transfer + solve.
 
     .venv/bin/python benchmarks/bench_invert.py [--n 20000] [--scan DIR] [--true-radiance]
         [--scan-invert '{"albedo_footprint_rings": 0}']
+
+A window's solved sun (``reroom.invert.sun``) is reported against the HDRI's: the angle
+between the two directions and the irradiance error.
     .venv/bin/python benchmarks/bench_invert.py --speed DIR --skip-solvers
 """
 
@@ -137,6 +140,19 @@ def scan_table(scan: str, true_radiance: bool, options: dict | None = None) -> N
         dist = _l2_text(light)
         target = "10 %" if light["type"] in ("point", "line") else ""
         print(f"| {light['name']} | {light.get('truth')} | {text} | 5 % | {dist} | {target} |")
+    for light in ev["lights"]:
+        sun = (light.get("distribution") or {}).get("sun")
+        if sun is None:
+            continue
+        if sun.get("truth") is None:
+            print(f"\n{light['name']}: a sun solved, but the true sky has none through it")
+            continue
+        err = ", ".join(f"{x:+.1%}" for x in sun["irradiance_relative_error"])
+        print(
+            f"\n{light['name']}'s sun: {sun['angle_deg']:.2f} degrees from the HDRI's, "
+            f"irradiance error {err} (the true sun is {sun['truth']['share_of_flux']:.1%} "
+            "of the window's flux)"
+        )
     print(f"\nper-vertex albedo: {ev['per_vertex']}; missed lights: {ev['missed_lights']}\n")
 
 

@@ -365,6 +365,19 @@ def test_window_swap_scales_into_model_units() -> None:
     assert f3[0] == f3[1] == f3[2] > 0
     with pytest.raises(Exception, match="no cube-map distribution"):
         swap_window_environment({**light, "distribution": {"basis": "sh"}}, "sunset")
+    # A recovered sun (reroom.invert.sun) is part of the window's light: the swap counts
+    # it, spread over its cell, as it would count the same sun left in the cells.
+    from reroom.invert.sun import fold_sun_into_cells
+
+    sun = {"direction": [0.3, -0.6, 0.74], "irradiance": [0.5, 0.4, 0.3]}
+    folded = {**light, "distribution": {**light["distribution"]}}
+    folded["distribution"]["cells"] = fold_sun_into_cells(
+        rec, basis, sun["direction"], sun["irradiance"]
+    ).tolist()
+    _, f_sun = swap_window_environment({**light, "sun": sun}, "sunset")
+    _, f_folded = swap_window_environment(folded, "sunset")
+    np.testing.assert_allclose(f_sun, f_folded, rtol=1e-12)
+    assert f_sun[0] > f3[0]
 
 
 def test_window_swap_shows_the_new_sky_at_full_resolution(scan: Path, tmp_path: Path) -> None:

@@ -283,3 +283,63 @@ def test_point_light_refined_towards_the_light_that_lit_the_room(
     else:
         np.testing.assert_allclose(found, given)
         assert "position_refinement" not in entry
+
+
+def _sunny_box_scan(root: Path, sun: np.ndarray | None, e_sun: float = 4.0) -> Path:
+    """``_box_scan`` with a window on the wall y = 0 and, if ``sun``, its sunlit patch."""
+    from reroom.invert.sun import sun_transfer
+    from reroom.invert.windows import WindowOpening
+    from reroom.lights.lightset import Light, LightSet, write_lights
+    from reroom.rays import RayCaster
+
+    scan = _box_scan(root, radiance=0.05)
+    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
+    geometry = {
+        "centre": [1.5, 0.0, 1.4],
+        "half_u": [0.6, 0.0, 0.0],
+        "half_v": [0.0, 0.0, 0.5],
+        "normal": [0.0, 1.0, 0.0],
+    }
+    radiance = np.full((len(mesh.vertices), 3), 0.05)
+    if sun is not None:
+        # The closed wall lies in the opening's plane, which the rays stop short of.
+        window = WindowOpening("w", **geometry)
+        normals = np.asarray(mesh.vertex_normals)  # into the room (the box is inverted)
+        f = sun_transfer(RayCaster(mesh), window, sun, mesh.vertices, normals)
+        radiance += (0.5 / np.pi * e_sun * f)[:, None]
+    write_ply(
+        scan / "hdr" / "hdr_mesh.ply",
+        mesh,
+        {"radiance": radiance.astype(np.float32), "observed": np.ones(len(radiance), np.uint8)},
+    )
+    win = Light("window0", "window", "layout", geometry, {}, "test window")
+    write_lights(LightSet([win], [], np.full(len(radiance), -1, np.int32)), scan / "lights")
+    return scan
+
+
+@pytest.mark.parametrize("sunny", [True, False])
+def test_a_sun_through_the_window_is_found_solved_and_drawn(tmp_path: Path, sunny: bool) -> None:
+    from reroom.invert.window_env import latlong_solid_angles
+    from reroom.io.images import read_exr
+
+    sun = np.array([0.3, -0.6, 0.74]) / np.linalg.norm([0.3, -0.6, 0.74])
+    scan = _sunny_box_scan(tmp_path, sun if sunny else None)
+    result = run_invert(scan, None, FAST)
+    entry = json.loads((scan / "invert" / "scene.json").read_text())["lights"][0]
+    assert entry["type"] == "window" and len(entry["distribution"]["cells"]) == 96
+    env = read_exr(scan / "invert" / entry["environment_exr"])[..., :3]
+    if not sunny:
+        assert "sun" not in entry and not any("a sun found" in w for w in result.warnings)
+        return
+    found = entry["sun"]
+    assert np.degrees(np.arccos(min(1.0, float(np.dot(found["direction"], sun))))) < 1.5
+    # The patch is solved with the sun's own sharp transfer. The data fix albedo x
+    # irradiance (0.5 x 4 on the floor): the uniform rest of this room reads as albedo 1,
+    # as in the closed white room above, so the sun comes back as about 2.
+    floor = result.solve.albedo[1]
+    np.testing.assert_allclose(floor * np.asarray(found["irradiance"]), 2.0, rtol=0.1)
+    assert any("a sun found" in w for w in result.warnings)
+    # The rendering map sends the sun's irradiance along its direction, from one texel.
+    flux = (env * latlong_solid_angles(env.shape[0])[..., None]).reshape(-1, 3)
+    assert env.shape[0] >= 256
+    assert flux.max(axis=0) == pytest.approx(np.asarray(found["irradiance"]), rel=1e-3)

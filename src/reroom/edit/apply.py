@@ -321,6 +321,12 @@ def swap_window_environment(
         raise ReroomError(f"window {light.get('name')!r} has no cube-map distribution to swap")
     basis = CubemapBasis(int(dist.get("n", 4)))
     rec = np.maximum(np.asarray(dist["cells"], float), 0.0)
+    if light.get("sun"):
+        # The recovered sun is part of the window's light (reroom.invert.sun): in the
+        # cells it stands for its irradiance over its cell, as a sky's sun in `new`.
+        from reroom.invert.sun import fold_sun_into_cells
+
+        rec = fold_sun_into_cells(rec, basis, light["sun"]["direction"], light["sun"]["irradiance"])
     d = _fibonacci_sphere(samples)
     cell = basis.cell_of(d)
     count = np.bincount(cell, minlength=basis.size).astype(float)

@@ -28,7 +28,9 @@ The only code of :mod:`reroom.invert` that reads ``ground_truth/``. What is comp
     its power is the power leaving the fixture (light out of a channel's open ends
     included);
   - window (:func:`true_window_cells`): the HDRI (times ``scale``) averaged per cube
-    cell over the directions that leave the room through the window.
+    cell over the directions that leave the room through the window. A solved sun
+    (:mod:`reroom.invert.sun`) is folded into its cell for that comparison and compared
+    with the HDRI's own (:func:`true_sun`: angle, irradiance).
 
   **The fixture** is every true part within :data:`FIXTURE_RADIUS` (0.3 m) of the light
   except the light's own part and the room's shell (walls, floor, ceiling, reveals,
@@ -66,6 +68,7 @@ from reroom.invert.export import (
     line_profile_grid,
 )
 from reroom.invert.line_fixture import line_open_fraction
+from reroom.invert.sun import fold_sun_into_cells
 from reroom.io.mesh import read_ply
 
 __all__ = [
@@ -78,6 +81,7 @@ __all__ = [
     "true_line_profile",
     "true_point_intensity",
     "true_point_profile",
+    "true_sun",
     "true_window_cells",
     "true_window_power",
 ]
@@ -105,72 +109,99 @@ def _truth(scan: Path) -> tuple[Any, dict, Path]:
     return verts, scene, gt / "scene"
 
 
-def _window_samples(
-    light: dict, scene_dir: Path, samples: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Seeded sphere directions, their ``max(0, -d . n_in)`` and the true radiance seen.
+def _window_texels(
+    light: dict, scene_dir: Path
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every texel of a true window's HDRI: direction, solid angle, ``max(0, -d . n_in)``
+    and radiance.
 
     The HDRI is equirectangular with the zenith at the top row, the centre looking along
     +X and ``u = 0.5 - atan2(d_y, d_x) / 2 pi`` (``docs/formats.md``), rotated by
-    ``rotation_deg`` about +Z; nearest pixel, times ``scale``. A ray from the room
-    leaving along ``d`` sees ``radiance``; it leaves through the window where ``cos > 0``.
+    ``rotation_deg`` about +Z, times ``scale``. A ray from the room leaving along ``d``
+    sees ``radiance``; it leaves through the window where ``cos > 0``. Summing over the
+    texels integrates the map exactly as the renderer's nearest texel would see it: a
+    sun of three texels (``city.exr``) carries 17 % of the map's light, which random
+    directions (400k, the quadrature before session 21) hit two or three times.
     """
+    from reroom.invert.window_env import latlong_directions, latlong_solid_angles
     from reroom.io.images import read_exr
 
     img = read_exr(scene_dir / light["hdri_file"])[..., :3]
     h, w = img.shape[:2]
-    n_in = np.asarray(light["normal"], float)
-    rng = np.random.default_rng(0)
-    d = rng.standard_normal((samples, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    cos = np.maximum(-(d @ n_in), 0.0)  # the ray from the room leaves along d
+    if w != 2 * h:
+        raise ScanError(scene_dir / light["hdri_file"], f"is {w}x{h}, not a 2:1 lat-long map")
+    d = latlong_directions(h).reshape(-1, 3)
     rot = np.deg2rad(light.get("rotation_deg", 0.0))
-    az = np.arctan2(d[:, 1], d[:, 0]) - rot
-    u = np.mod(0.5 - az / (2 * np.pi), 1.0)
-    v = np.arccos(np.clip(d[:, 2], -1, 1)) / np.pi
-    px = np.minimum((u * w).astype(int), w - 1)
-    py = np.minimum((v * h).astype(int), h - 1)
-    return d, cos, light.get("scale", 1.0) * img[py, px]
+    c, s = np.cos(rot), np.sin(rot)
+    d = d @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # turn by +rot about Z
+    n_in = np.asarray(light["normal"], float)
+    cos = np.maximum(-(d @ n_in), 0.0)
+    rad = light.get("scale", 1.0) * np.maximum(img.reshape(-1, 3).astype(np.float64), 0.0)
+    return d, latlong_solid_angles(h).ravel(), cos, rad
 
 
-def true_window_power(light: dict, scene_dir: Path, samples: int = 400000) -> np.ndarray:
-    """Flux through a true window: ``A * integral scale * hdri(d) cos dw`` (seeded samples).
-
-    Directions and radiance as :func:`_window_samples` (the HDRI's convention).
-    """
+def true_window_power(light: dict, scene_dir: Path) -> np.ndarray:
+    """Flux through a true window: ``A * integral scale * hdri(d) cos dw`` (over the texels,
+    :func:`_window_texels`)."""
     corners = np.asarray(light["corners"], float)
     area = np.linalg.norm(corners[1] - corners[0]) * np.linalg.norm(corners[3] - corners[0])
-    _, cos, rad = _window_samples(light, Path(scene_dir), samples)
-    return area * 4 * np.pi / samples * (cos[:, None] * rad).sum(axis=0)
+    _, omega, cos, rad = _window_texels(light, Path(scene_dir))
+    return area * ((omega * cos)[:, None] * rad).sum(axis=0)
 
 
-def true_window_cells(
-    light: dict, scene_dir: Path, n: int = 4, samples: int = 400000
-) -> tuple[np.ndarray, np.ndarray]:
+def true_window_cells(light: dict, scene_dir: Path, n: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """The true window's light in the solved cube-map basis.
 
     Each cell holds the mean true radiance (HDRI times ``scale``) over the part of the
-    cell whose directions leave the room through the window (``d . n_in < 0``), the
-    same seeded directions as :func:`true_window_power`: that is what the cell's basis
-    light stands for in the solve, a partly shown cell included.
+    cell whose directions leave the room through the window (``d . n_in < 0``), weighted
+    by solid angle over the HDRI's texels: that is what the cell's basis light stands
+    for in the solve, a partly shown cell included.
 
     Returns
     -------
     cells : ndarray, shape (6 n^2, 3)
         Mean radiance per cell (0 where the window shows nothing).
     shown : ndarray of bool, shape (6 n^2,)
-        Cells with at least one direction through the window.
+        Cells with at least one texel through the window.
     """
     basis = CubemapBasis(n)
-    d, cos, rad = _window_samples(light, Path(scene_dir), samples)
+    d, omega, cos, rad = _window_texels(light, Path(scene_dir))
     out = cos > 0
     cell = basis.cell_of(d[out])
-    count = np.bincount(cell, minlength=basis.size)
+    area = np.bincount(cell, omega[out], minlength=basis.size)
     total = np.stack(
-        [np.bincount(cell, rad[out, c], minlength=basis.size) for c in range(3)], axis=1
+        [np.bincount(cell, omega[out] * rad[out, c], minlength=basis.size) for c in range(3)],
+        axis=1,
     )
-    cells = np.divide(total, count[:, None], out=np.zeros_like(total), where=count[:, None] > 0)
-    return cells, count > 0
+    cells = np.divide(total, area[:, None], out=np.zeros_like(total), where=area[:, None] > 0)
+    return cells, area > 0
+
+
+def true_sun(light: dict, scene_dir: Path, radius_deg: float = 2.0) -> dict[str, Any] | None:
+    """The sun of a true window's HDRI, if it has one that shines through the window.
+
+    The brightest texel the window shows and the texels within ``radius_deg`` of it
+    brighter than a tenth of it: their irradiance (sum of radiance x solid angle, per
+    channel) and luminance-weighted direction, with their share of the window's flux.
+    None when that blob is under 2 % of the flux (an overcast sky has no sun).
+    """
+    d, omega, cos, rad = _window_texels(light, Path(scene_dir))
+    lum = rad @ _LUMA
+    shown = cos > 0
+    if not shown.any():
+        return None
+    k = int(np.flatnonzero(shown)[np.argmax(lum[shown])])
+    blob = shown & (d @ d[k] > np.cos(np.deg2rad(radius_deg))) & (lum > 0.1 * lum[k])
+    irradiance = (omega[blob, None] * rad[blob]).sum(axis=0)
+    share = float(((omega * cos * lum)[blob]).sum() / max((omega * cos * lum).sum(), 1e-300))
+    if share < 0.02:
+        return None
+    direction = (omega[blob] * lum[blob]) @ d[blob]
+    return {
+        "direction": (direction / np.linalg.norm(direction)).tolist(),
+        "irradiance": irradiance.tolist(),
+        "share_of_flux": share,
+    }
 
 
 def _fixture_caster(
@@ -517,6 +548,23 @@ def _light_position(light: dict) -> np.ndarray:
     return np.asarray(light["corners"], float).mean(axis=0)
 
 
+def _compare_sun(est: dict, truth: dict | None, k: np.ndarray) -> dict[str, Any]:
+    """A window's solved sun against the HDRI's (:func:`true_sun`): angle and irradiance."""
+    if truth is None:
+        return {"truth": None, "note": "the true sky has no sun through this window"}
+    a = np.asarray(est["direction"], float)
+    b = np.asarray(truth["direction"], float)
+    angle = float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a), -1.0, 1.0))))
+    irr = np.asarray(est["irradiance"], float) / k
+    t_irr = np.asarray(truth["irradiance"], float)
+    return {
+        "truth": truth,
+        "angle_deg": angle,
+        "irradiance": irr.tolist(),
+        "irradiance_relative_error": (irr / t_irr - 1).tolist(),
+    }
+
+
 def _compare_distribution(
     e: dict, t: dict, scene_dir: Path, k: np.ndarray, seen: dict[str, np.ndarray]
 ) -> tuple[dict[str, Any], np.ndarray | None]:
@@ -529,8 +577,14 @@ def _compare_distribution(
         return {"basis": None, "relative_l2": None}, None
     dist: dict[str, Any] = {"channel": "Rec. 709 luminance of (r, g, b) / k"}
     if kind == "window":
+        n = int(e["distribution"]["n"])
         cells = np.asarray(e["distribution"]["cells"], float)
-        truth, shown = true_window_cells(t, scene_dir, n=int(e["distribution"]["n"]))
+        sun = e.get("sun")
+        if sun is not None:
+            # The truth's cells average the HDRI, its sun included: compare like with like.
+            cells = fold_sun_into_cells(cells, CubemapBasis(n), sun["direction"], sun["irradiance"])
+            dist["sun"] = _compare_sun(sun, true_sun(t, scene_dir), k)
+        truth, shown = true_window_cells(t, scene_dir, n=n)
         dist.update(
             basis="cubemap",
             shown_cells=int(shown.sum()),

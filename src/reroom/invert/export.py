@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 
 from reroom.invert.basis import CubemapBasis, LineBasis
+from reroom.invert.sun import add_sun_to_map, sun_power
 from reroom.io.atomic import atomic_path, atomic_write_json
 from reroom.io.ies import IESProfile, write_ies
 from reroom.io.images import write_exr
@@ -459,7 +460,16 @@ def light_entries(
     entries = []
     basis = CubemapBasis(result.cubemap_n)
     window_maps = window_maps or {}
+    # A window's sun (reroom.invert.sun) is solved as a light of its own but stored in its
+    # window's entry, and drawn into its rendering map: edits of the window take it along.
+    suns = {
+        info["window"]: (block, info)
+        for block, info in zip(result.lights, result.light_info, strict=True)
+        if block.kind == "sun"
+    }
     for block, info in zip(result.lights, result.light_info, strict=True):
+        if block.kind == "sun":
+            continue
         g = info["geometry"]
         values = result.solve.intensities[block.name]
         share = result.solve.light_share.get(block.name, 0.0)
@@ -503,14 +513,31 @@ def light_entries(
                 weight = WindowView.load(
                     info["view"]["hdri"], basis, n_in, float(info["view"].get("rotation_deg", 0.0))
                 ).weight(basis)
-            e["power"] = window_power(
-                cells, basis, n_in, _window_area(g), direction_weight=weight
-            ).tolist()
+            power = window_power(cells, basis, n_in, _window_area(g), direction_weight=weight)
+            sun = suns.get(block.name)
+            if sun is not None:
+                sun_dir = np.asarray(sun[1]["geometry"]["direction"], float)
+                sun_irr = np.asarray(result.solve.intensities[sun[0].name], float)[0]
+                sun_flux = sun_power(sun_irr, sun_dir, n_in, _window_area(g))
+                e["sun"] = {
+                    "name": sun[0].name,
+                    "direction": sun_dir.tolist(),
+                    "direction_convention": "a ray from the room leaving towards the sun",
+                    "irradiance": sun_irr.tolist(),
+                    "power": sun_flux.tolist(),
+                    "share_of_irradiance": result.solve.light_share.get(sun[0].name, 0.0),
+                    "detection": sun[1].get("detection", {}),
+                }
+                power = power + sun_flux
+            e["power"] = power.tolist()
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)
                 write_exr(out / f"window_{block.name}_cells.exr", ll)
                 photo = window_maps.get(block.name)
-                write_exr(out / f"window_{block.name}.exr", ll if photo is None else photo[0])
+                env = ll if photo is None else photo[0]
+                if sun is not None:
+                    env = add_sun_to_map(env, sun_dir, sun_irr)
+                write_exr(out / f"window_{block.name}.exr", env)
                 e["environment_exr"] = f"window_{block.name}.exr"
                 e["environment_cells_exr"] = f"window_{block.name}_cells.exr"
                 source = "cells"

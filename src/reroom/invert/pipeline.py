@@ -191,6 +191,12 @@ class InvertOptions:
         the rendering map. Takes precedence over ``window_photo_shapes``.
     window_view_rotation_deg : float
         That HDRI's turn about +Z (degrees).
+    window_sun : bool
+        Look for a sun shining through each window (a sharp sunlit patch in the HDR
+        radiance, :func:`reroom.invert.sun.find_sun`) and solve it as a directional light
+        beside the window's cells (:func:`reroom.invert.sun.sun_transfer`); the window's
+        rendering map then shows it as a small disc. Nothing changes for a window
+        whose patch fails the tests (an overcast sky, a sun behind the building).
     refine_points : bool
         After the first solve, move each point light to where its share of the solved
         lighting fits the photos best (:mod:`reroom.invert.refine_points`), then solve
@@ -266,6 +272,7 @@ class InvertOptions:
     window_photo_shapes: bool = False
     window_view_hdri: str | None = None
     window_view_rotation_deg: float = 0.0
+    window_sun: bool = True
     refine_points: bool = True
     refine_max_shift: float = 0.3
     refine_max_receivers: int = 20000
@@ -726,10 +733,10 @@ def run_invert(
                 prior_weight=prior_weight,
             )
         )
+        pane = (window_of[np.asarray(mesh.faces)] == k).any(axis=1)
         if options.window_samples > 0:
             # Integrated over the opening, as the area lights (reroom.invert.portal); the
             # hemisphere rays still decide which directions carry indirect light.
-            pane = (window_of[np.asarray(mesh.faces)] == k).any(axis=1)
             columns.append(
                 window_portal_transfer(
                     caster,
@@ -748,6 +755,13 @@ def run_invert(
         info.append(
             {"name": light.name, "type": "window", "geometry": light.geometry, **prior_info}
         )
+        if options.window_sun and isinstance(basis, CubemapBasis):
+            t_sun = time.perf_counter()
+            _add_window_sun(
+                caster, openings[k], light.name, pane, p_recv, n_recv, radiance[receivers],
+                observed[receivers], options, blocks, columns, info, notes,
+            )  # fmt: skip
+            timings["window_sun"] = timings.get("window_sun", 0.0) + time.perf_counter() - t_sun
     for light in light_list:
         g = light.geometry
         if light.type == "point":
@@ -1029,6 +1043,47 @@ def _surface_textures(
         return None
     notes.extend(stats["notes"])
     return textures, stats
+
+
+def _add_window_sun(
+    caster, opening, window_name, pane, p_recv, n_recv, radiance, observed, options,
+    blocks, columns, info, notes,
+) -> None:  # fmt: skip
+    """Look for a sun through one window; if found, add it as a light of its own.
+
+    (:mod:`reroom.invert.sun`.) The sun is a chromatic light of one element, its
+    irradiance at normal incidence, named ``<window>_sun``; ``scene.json`` stores it
+    inside its window's entry.
+    """
+    from reroom.invert.sun import find_sun, sun_transfer
+
+    obs = np.flatnonzero(observed)
+    est = find_sun(
+        caster, opening, p_recv[obs], n_recv[obs], radiance[obs], pane_faces=pane,
+        seed=options.seed,
+    )  # fmt: skip
+    if est is None:
+        return
+    name = f"{window_name}_sun"
+    blocks.append(LightBlock(name, "sun", 1, False))
+    columns.append(
+        sun_transfer(caster, opening, est.direction, p_recv, n_recv, pane_faces=pane)[:, None]
+    )
+    info.append(
+        {
+            "name": name,
+            "type": "sun",
+            "window": window_name,
+            "geometry": {"direction": [float(x) for x in est.direction], "window": window_name},
+            "detection": est.as_dict(),
+        }
+    )
+    elevation = float(np.degrees(np.arcsin(np.clip(est.direction[2], -1.0, 1.0))))
+    notes.append(
+        f"window {window_name}: a sun found along {np.round(est.direction, 3).tolist()} "
+        f"(elevation {elevation:.1f} deg; {est.lit} receivers lit, {est.contrast:.1f}x "
+        f"brighter than around them, correlation {est.score:.2f}): solved as its own light"
+    )
 
 
 def _refine_point_lights(

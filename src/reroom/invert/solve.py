@@ -78,7 +78,7 @@ __all__ = [
     "solve_lighting",
 ]
 
-LIGHT_KINDS = ("area", "window", "point", "line")
+LIGHT_KINDS = ("area", "window", "point", "line", "sun")
 METHODS = ("alternating", "joint")
 
 
@@ -94,8 +94,9 @@ class LightBlock:
     ----------
     name : str
         The light's name (reports and warnings use it).
-    kind : {"area", "window", "point", "line"}
-        Its model. Only ``monochrome`` and ``adjacency`` change the solve.
+    kind : {"area", "window", "point", "line", "sun"}
+        Its model (``"sun"``: a window's direct sun, one chromatic irradiance,
+        :mod:`reroom.invert.sun`). Only ``monochrome`` and ``adjacency`` change the solve.
     size : int
         Number of basis elements (columns of the transfer matrix).
     monochrome : bool

@@ -274,6 +274,26 @@ def lights_section(run: Path) -> str:
                 esc(light.get("reason", "")),
             ]
         )
+        sun = s.get("sun") if s else None
+        if sun:  # a window's sun, found and solved by reroom invert (reroom.invert.sun)
+            d = sun.get("direction", [0.0, 0.0, 0.0])
+            det = sun.get("detection", {})
+            rows.append(
+                [
+                    esc(sun.get("name", "")),
+                    "sun",
+                    "invert",
+                    "towards " + fmt(d),
+                    fmt(sun.get("power")),
+                    fmt(sun.get("share_of_irradiance")),
+                    esc(
+                        f"a sharp sunlit patch seen through {light['name']}: "
+                        f"{det.get('lit_receivers', '?')} receivers, "
+                        f"{det.get('contrast', '?')}x brighter than around them "
+                        f"(t = {det.get('score', '?')})"
+                    ),
+                ]
+            )
     html = table(
         ["light", "type", "source", "position (m)", "power (RGB)", "share of irradiance", "why"],
         rows,
