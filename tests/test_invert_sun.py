@@ -135,3 +135,23 @@ def test_find_sun_ignores_unobserved_receivers(bad: float) -> None:
     n = np.tile([0.0, 0, 1], (len(p), 1))
     est = find_sun(RayCaster(mesh), WINDOW, p, n, rad, coarse=1500)
     assert est is not None and np.degrees(np.arccos(min(1.0, est.direction @ SUN))) < 1.5
+
+
+def test_a_patch_must_be_the_openings_image_along_every_edge() -> None:
+    from reroom.invert.sun import _edge_contrasts
+
+    g = np.linspace(-2, 2, 81)
+    u, v = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    lit = (np.abs(u) <= 1) & (np.abs(v) <= 1)
+    ring = ~lit & (np.abs(u) <= 1.5) & (np.abs(v) <= 1.5)
+    sun = np.where(lit, 2.0, 0.0)  # log luminance: the opening's image, e^2 brighter
+    np.testing.assert_allclose(_edge_contrasts(u, v, lit, ring, sun), np.exp(2.0))
+    # A lamp's pool that shares one edge with the image (bright wherever u < 1): sharp
+    # across that edge only. (On the real slambook2 scan such a region passed the ring
+    # test at t 23; its edges were 0.97, 1.79, 4.8 and 1.09.)
+    pool = np.where(u <= 1, 2.0, 0.0)
+    edges = sorted(_edge_contrasts(u, v, lit, ring, pool))
+    np.testing.assert_allclose(edges, [1.0, 1.0, 1.0, np.exp(2.0)])
+    # Edges the data do not show (no receivers beyond them) are skipped.
+    seen = ring & (u < 1)
+    assert len(_edge_contrasts(u, v, lit, seen, sun)) == 3

@@ -757,9 +757,14 @@ def run_invert(
         )
         if options.window_sun and isinstance(basis, CubemapBasis):
             t_sun = time.perf_counter()
+            # Searched on the wall, floor and ceiling receivers, the ones the solve fits: a
+            # patch on furniture alone could not be solved, and a bright object that
+            # happens to line up with the opening is not a sun (on the real slambook2
+            # scan a lamp-lit table top did, at t 23).
+            on_shell = np.isin(labels[receivers], list(CLUSTER_LABELS.values()))
             _add_window_sun(
                 caster, openings[k], light.name, pane, p_recv, n_recv, radiance[receivers],
-                observed[receivers], options, blocks, columns, info, notes,
+                observed[receivers] & on_shell, options, blocks, columns, info, notes,
             )  # fmt: skip
             timings["window_sun"] = timings.get("window_sun", 0.0) + time.perf_counter() - t_sun
     for light in light_list:

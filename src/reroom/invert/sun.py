@@ -27,12 +27,18 @@ so the right direction puts a bright set against a darker ring, where a wrong on
 straddles the patch or lands on a region that is bright for other reasons (near a
 lamp, the wall beside the window) and its ring is as bright. (A correlation with the
 whole room's brightness, tried first, preferred such large bright regions: on the
-sunny `furnished` scan it picked a direction 50 degrees off, t 1.4 against 37 for the
+sunny `furnished` scan it picked a direction 65 degrees off, t 1.4 against 37 for the
 true one.) The frames clip the patch (auto-exposed for the room, they see it white),
 so its radiance is a lower bound: the test needs only the contrast. A sun is kept
 only if the best t reaches ``min_score`` and its lit receivers are at least
 ``min_contrast`` times as bright (median luminance) as the ring; otherwise the window
-has no sun (an overcast sky, a sun behind the building) and nothing changes.
+has no sun (an overcast sky, a sun behind the building) and nothing changes. Last,
+the patch must be the opening's image: along each of its edges the data show, the lit
+receivers beside the edge are brighter than the ring receivers just beyond it
+(:func:`_edge_contrasts`). A lamp's pool on a wall can line up with one edge of some
+projection of the opening and pass the ring test (the real slambook2 scan, t 23), but
+not along the others. ``reroom invert`` searches the wall, floor and ceiling receivers,
+the ones its solve fits.
 """
 
 from __future__ import annotations
@@ -84,6 +90,51 @@ class SunEstimate:
             "contrast": round(float(self.contrast), 3),
             "evaluations": int(self.evaluations),
         }
+
+
+def _opening_coords(
+    window: WindowOpening, direction: np.ndarray, points: np.ndarray, offset: float,
+    normals: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Where each point's ray along ``direction`` meets the opening's plane, in the
+    rectangle's coordinates ``u, v`` (``|u|, |v| <= 1`` inside; NaN for rays that do
+    not reach the plane)."""
+    s = np.asarray(direction, np.float64)
+    denom = float(s @ window.normal)
+    if denom >= 0:
+        nan = np.full(len(points), np.nan)
+        return nan, nan.copy()
+    start = points + offset * normals
+    t = ((window.centre - start) @ window.normal) / denom
+    rel = start + t[:, None] * s - window.centre
+    u = rel @ window.half_u / float(window.half_u @ window.half_u)
+    v = rel @ window.half_v / float(window.half_v @ window.half_v)
+    behind = t <= 0
+    u[behind] = np.nan
+    v[behind] = np.nan
+    return u, v
+
+
+def _edge_contrasts(
+    u: np.ndarray, v: np.ndarray, lit: np.ndarray, ring: np.ndarray, y: np.ndarray,
+    min_count: int = 5,
+) -> list[float]:  # fmt: skip
+    """Median luminance ratio across each edge of the opening's image the data show.
+
+    A sun's patch is the opening projected along the sun: along each of its four edges
+    the lit receivers next to that edge (within 0.4 of it in the rectangle's
+    coordinates) are brighter than the ring receivers whose rays pass just beyond it.
+    Edges with fewer than ``min_count`` receivers on either side (hidden, off the mesh)
+    are skipped.
+    """
+    out = []
+    for coord, other in ((u, v), (v, u)):
+        for sign in (-1.0, 1.0):
+            inner = lit & (sign * coord > 0.6)
+            outer = ring & (sign * coord > 1.0) & (np.abs(other) <= 1.0)
+            if inner.sum() >= min_count and outer.sum() >= min_count:
+                out.append(float(np.exp(np.median(y[inner]) - np.median(y[outer]))))
+    return out
 
 
 def _through_opening(
@@ -223,6 +274,8 @@ def find_sun(
     min_score: float = 12.0,
     min_contrast: float = 2.0,
     neighbourhood: float = 0.12,
+    min_edges: int = 2,
+    min_edge_contrast: float = 1.5,
     seed: int = 0,
 ) -> SunEstimate | None:
     """The direction of a sun shining through ``window``, from the observed radiance.
@@ -246,6 +299,10 @@ def find_sun(
         statistic reaches ``min_score`` and its patch is ``min_contrast`` times as
         bright as its ring (the unlit receivers within ``neighbourhood`` metres, or 1.5
         receiver spacings on a coarser mesh).
+    min_edges, min_edge_contrast:
+        The patch must also be the opening's image: at least ``min_edges`` of its four
+        edges seen, each with the lit receivers beside it ``min_edge_contrast`` times
+        as bright as the ring receivers just beyond it.
     seed:
         Seed of the subset.
 
@@ -303,14 +360,23 @@ def find_sun(
     cand = cand[cand @ window.normal < 0]
     scores = np.array([score(d, sub)[0] for d in cand])
     best = cand[int(np.argmax(scores))]
-    spacing = np.sqrt(4 * np.pi / coarse)  # radians between coarse directions
-    for radius in (spacing, spacing / 4, spacing / 16):
+    step = np.sqrt(4 * np.pi / coarse)  # radians between coarse directions
+    for radius in (step, step / 4, step / 16):
         grid = _local_grid(best, radius, 4)
         grid = grid[grid @ window.normal < 0]
         sc = np.array([score(d, sub)[0] for d in grid])
         best = grid[int(np.argmax(sc))]
     final, contrast, n_lit = score(best, np.arange(len(rows)))
     if n_lit < min_lit or final < min_score or contrast < min_contrast:
+        return None
+    # The patch must be the opening's image: sharp along every edge the data show, not
+    # a bright region (a lamp's cone on a wall) that shares one edge with it.
+    lit = _through_opening(caster, window, best, p[rows], n[rows], caster.eps, 0.02, pane)
+    dist = cKDTree(front[lit]).query(front, distance_upper_bound=neighbourhood)[0]
+    ring = np.isfinite(dist) & ~lit
+    u, v = _opening_coords(window, best, p[rows], caster.eps, n[rows])
+    edges = _edge_contrasts(u, v, lit, ring, y)
+    if len(edges) < min_edges or min(edges) < min_edge_contrast:
         return None
     return SunEstimate(best / np.linalg.norm(best), final, n_lit, contrast, evaluations)
 
