@@ -95,24 +95,24 @@ class SunEstimate:
 def _opening_coords(
     window: WindowOpening, direction: np.ndarray, points: np.ndarray, offset: float,
     normals: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Where each point's ray along ``direction`` meets the opening's plane, in the
-    rectangle's coordinates ``u, v`` (``|u|, |v| <= 1`` inside; NaN for rays that do
-    not reach the plane)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Where each point's ray along ``direction`` meets the opening's plane: the distance
+    ``t`` and the rectangle's coordinates ``u, v`` (``|u|, |v| <= 1`` inside; NaN for
+    rays that do not reach the plane)."""
     s = np.asarray(direction, np.float64)
     denom = float(s @ window.normal)
-    if denom >= 0:
+    if denom >= 0:  # a ray leaving the room goes against the inward normal
         nan = np.full(len(points), np.nan)
-        return nan, nan.copy()
+        return nan, nan.copy(), nan.copy()
     start = points + offset * normals
     t = ((window.centre - start) @ window.normal) / denom
     rel = start + t[:, None] * s - window.centre
     u = rel @ window.half_u / float(window.half_u @ window.half_u)
     v = rel @ window.half_v / float(window.half_v @ window.half_v)
     behind = t <= 0
-    u[behind] = np.nan
-    v[behind] = np.nan
-    return u, v
+    for a in (t, u, v):
+        a[behind] = np.nan
+    return t, u, v
 
 
 def _edge_contrasts(
@@ -150,21 +150,14 @@ def _through_opening(
     """``(N,)`` bool: the ray from each point (offset along its normal) along
     ``direction`` crosses the opening's rectangle before meeting the mesh."""
     s = np.asarray(direction, np.float64)
-    n_in = window.normal
     out = np.zeros(len(points), dtype=bool)
-    denom = float(s @ n_in)
-    if denom >= 0:  # a ray leaving the room goes against the inward normal
-        return out
-    start = points + offset * normals
-    t = ((window.centre - start) @ n_in) / denom
-    hit = start + t[:, None] * s
-    rel = hit - window.centre
-    u = rel @ window.half_u / float(window.half_u @ window.half_u)
-    v = rel @ window.half_v / float(window.half_v @ window.half_v)
-    cand = (t > tolerance) & (np.abs(u) <= 1.0) & (np.abs(v) <= 1.0) & (normals @ s > 0)
+    t, u, v = _opening_coords(window, s, points, offset, normals)
+    with np.errstate(invalid="ignore"):
+        cand = (t > tolerance) & (np.abs(u) <= 1.0) & (np.abs(v) <= 1.0) & (normals @ s > 0)
     rows = np.flatnonzero(cand)
     if len(rows) == 0:
         return out
+    start = points + offset * normals
     stop = t[rows] - tolerance
     blocked = caster.occluded(start[rows], s, tmax=stop)
     if pane is not None and blocked.any():
@@ -374,7 +367,7 @@ def find_sun(
     lit = _through_opening(caster, window, best, p[rows], n[rows], caster.eps, 0.02, pane)
     dist = cKDTree(front[lit]).query(front, distance_upper_bound=neighbourhood)[0]
     ring = np.isfinite(dist) & ~lit
-    u, v = _opening_coords(window, best, p[rows], caster.eps, n[rows])
+    _, u, v = _opening_coords(window, best, p[rows], caster.eps, n[rows])
     edges = _edge_contrasts(u, v, lit, ring, y)
     if len(edges) < min_edges or min(edges) < min_edge_contrast:
         return None
