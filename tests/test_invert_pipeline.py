@@ -339,6 +339,8 @@ def test_a_sun_through_the_window_is_found_solved_and_drawn(tmp_path: Path, sunn
     floor = result.solve.albedo[1]
     np.testing.assert_allclose(floor * np.asarray(found["irradiance"]), 2.0, rtol=0.1)
     assert any("a sun found" in w for w in result.warnings)
+    # Its level is taken where it lights fully (eq. 5.8 weighs those receivers little).
+    assert any("receivers it lights fully" in w for w in result.warnings)
     # The rendering map sends the sun's irradiance along its direction, from one texel.
     flux = (env * latlong_solid_angles(env.shape[0])[..., None]).reshape(-1, 3)
     assert env.shape[0] >= 256

@@ -155,3 +155,19 @@ def test_a_patch_must_be_the_openings_image_along_every_edge() -> None:
     # Edges the data do not show (no receivers beyond them) are skipped.
     seen = ring & (u < 1)
     assert len(_edge_contrasts(u, v, lit, seen, sun)) == 3
+
+
+def test_sun_transfer_footprint_softens_only_the_patchs_edge() -> None:
+    mesh, _ = _room()
+    p = _floor_points(0.02)
+    n = np.tile([0.0, 0, 1], (len(p), 1))
+    caster = RayCaster(mesh)
+    point = sun_transfer(caster, WINDOW, SUN, p, n)
+    soft = sun_transfer(caster, WINDOW, SUN, p, n, footprint=0.05, footprint_samples=32)
+    inside = sun_transfer(caster, WINDOW, SUN, p, n, footprint=0.12) == SUN[2]
+    # Well inside the patch nothing changes; near its edge the value is a lit fraction;
+    # over the floor the light is the same (the disc's average keeps the patch's area).
+    np.testing.assert_allclose(soft[inside], point[inside])
+    edge = (soft > 0) & (soft < SUN[2] - 1e-9)
+    assert edge.sum() > 20 and not inside[edge].any()
+    assert soft.sum() == pytest.approx(point.sum(), rel=0.03)

@@ -197,6 +197,10 @@ class InvertOptions:
         beside the window's cells (:func:`reroom.invert.sun.sun_transfer`); the window's
         rendering map then shows it as a small disc. Nothing changes for a window
         whose patch fails the tests (an overcast sky, a sun behind the building).
+    window_sun_footprint : float or None
+        Radius (metres) of the disc around each receiver over which the sun's transfer
+        averages its visibility, as the HDR radiance averages the pixels around a
+        vertex (None: half the receivers' median spacing; 0: the point alone).
     refine_points : bool
         After the first solve, move each point light to where its share of the solved
         lighting fits the photos best (:mod:`reroom.invert.refine_points`), then solve
@@ -273,6 +277,7 @@ class InvertOptions:
     window_view_hdri: str | None = None
     window_view_rotation_deg: float = 0.0
     window_sun: bool = True
+    window_sun_footprint: float | None = None
     refine_points: bool = True
     refine_max_shift: float = 0.3
     refine_max_receivers: int = 20000
@@ -907,6 +912,8 @@ def run_invert(
                     f"{second.objective:.4g}): positions kept"
                 )
         timings["refine_points"] = time.perf_counter() - t
+    if any(b.kind == "sun" for b in blocks):
+        result = _sun_from_its_patch(problem, result, options, notes, progress)
     # How much data each basis element had: the summed transfer over the clustered
     # receivers (green). Point and line bins that almost no receiver sees are barely
     # constrained by the solve; export fills them from their well-seen neighbours.
@@ -1071,8 +1078,16 @@ def _add_window_sun(
         return
     name = f"{window_name}_sun"
     blocks.append(LightBlock(name, "sun", 1, False))
+    footprint = options.window_sun_footprint
+    if footprint is None:
+        from scipy.spatial import cKDTree
+
+        pts = p_recv[obs]
+        footprint = 0.5 * float(np.median(cKDTree(pts).query(pts, k=2)[0][:, 1]))
     columns.append(
-        sun_transfer(caster, opening, est.direction, p_recv, n_recv, pane_faces=pane)[:, None]
+        sun_transfer(
+            caster, opening, est.direction, p_recv, n_recv, pane_faces=pane, footprint=footprint
+        )[:, None]
     )
     info.append(
         {
@@ -1087,8 +1102,81 @@ def _add_window_sun(
     notes.append(
         f"window {window_name}: a sun found along {np.round(est.direction, 3).tolist()} "
         f"(elevation {elevation:.1f} deg; {est.lit} receivers lit, {est.contrast:.1f}x "
-        f"brighter than around them, correlation {est.score:.2f}): solved as its own light"
+        f"brighter than around them, t {est.score:.1f}): solved as its own light"
     )
+
+
+def _sun_from_its_patch(problem, result, options, notes: list[str], progress=None):
+    """The solve again, each sun's irradiance taken from the receivers it lights fully.
+
+    The weights of eq. 5.8 trust the receivers whose light is mostly indirect: a sunlit
+    receiver, many times brighter than its indirect light, weighs 0.05-0.15, the unlit
+    ones around the patch 1. The solve so takes the sun's level from the patch's edge,
+    where a vertex's radiance (a mean over the pixels around it) is part lit and the
+    model's transfer is all or nothing, and it came out a third low on the sunny
+    `furnished` scan. Here the level is the median, over the receivers the sun lights at
+    least half as much as most of its patch, of what the rest of the solved model leaves
+    there: ``(pi Lbar / rho - E_ind - others) / F_sun``, per channel. The other lights and
+    the albedos are then solved again with the suns fixed at that level (their light
+    moved into the fixed term, as ``E_ind``), so that the window's cells do not keep the
+    share of the patch's light they had taken. Returns the new result (the suns'
+    intensities put back in), or ``result`` when no sun lights enough receivers fully.
+    """
+    import scipy.sparse as sp
+
+    min_receivers = 20
+    transfer = sp.csr_matrix(problem.transfer)
+    offsets = np.concatenate([[0], np.cumsum([b.size for b in problem.lights])]).astype(int)
+    intens = result.intensity_vector(problem.lights)
+    rho = result.albedo[problem.cluster]
+    ok = np.isfinite(rho).all(axis=1) & (rho > 0).all(axis=1)
+    model = transfer @ intens
+    levels: dict[int, np.ndarray] = {}
+    for k, block in enumerate(problem.lights):
+        if block.kind != "sun":
+            continue
+        f = np.asarray(transfer[:, offsets[k]].todense()).ravel()
+        lit = ok & (f > 0)
+        if lit.sum() < min_receivers:
+            continue
+        full = lit & (f >= 0.5 * np.percentile(f[lit], 90))
+        if full.sum() < min_receivers:
+            continue
+        own = np.outer(f, intens[offsets[k]])
+        left = np.pi * problem.radiance / np.where(ok[:, None], rho, 1.0) - problem.indirect
+        left = left - (model - own)
+        level = np.maximum(np.median(left[full] / f[full, None], axis=0), 0.0)
+        levels[k] = level
+        solved = np.asarray(result.intensities[block.name], float)[0]
+        notes.append(
+            f"{block.name}: irradiance {np.round(level, 3).tolist()} from the {int(full.sum())} "
+            f"receivers it lights fully (the solve, which weighs them little: "
+            f"{np.round(solved, 3).tolist()}); the rest solved again with it fixed"
+        )
+    if not levels:
+        return result
+    fixed = problem.indirect.copy()
+    for k, level in levels.items():
+        fixed += np.outer(np.asarray(transfer[:, offsets[k]].todense()).ravel(), level)
+    kept = [k for k in range(len(problem.lights)) if k not in levels]
+    cols = np.concatenate([np.arange(offsets[k], offsets[k + 1]) for k in kept]).astype(int)
+    again = solve_lighting(
+        InverseProblem(
+            radiance=problem.radiance,
+            indirect=fixed,
+            cluster=problem.cluster,
+            cluster_names=problem.cluster_names,
+            transfer=transfer[:, cols],
+            lights=[problem.lights[k] for k in kept],
+        ),
+        options.solve,
+        progress,
+    )
+    for k, level in levels.items():
+        name = problem.lights[k].name
+        again.intensities[name] = level[None, :]
+        again.light_share[name] = result.light_share.get(name, 0.0)
+    return again
 
 
 def _refine_point_lights(

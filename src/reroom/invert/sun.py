@@ -178,6 +178,8 @@ def sun_transfer(
     offset: float | None = None,
     tolerance: float = 0.02,
     pane_faces: ArrayLike | None = None,
+    footprint: float = 0.0,
+    footprint_samples: int = 16,
 ) -> np.ndarray:
     """Irradiance at each point per unit sun irradiance (at normal incidence).
 
@@ -227,8 +229,23 @@ def sun_transfer(
     if pane is not None and not pane.any():
         pane = None
     eps = caster.eps if offset is None else float(offset)
-    lit = _through_opening(caster, window, s, p, n, eps, tolerance, pane)
-    return np.where(lit, np.maximum(n @ s, 0.0), 0.0)
+    if footprint <= 0 or footprint_samples < 2:
+        lit = _through_opening(caster, window, s, p, n, eps, tolerance, pane)
+        return np.where(lit, np.maximum(n @ s, 0.0), 0.0)
+    # The lit fraction of a disc of radius `footprint` on each receiver's tangent plane
+    # (Vogel spiral): an HDR vertex's radiance is a mean over the pixels around it, so
+    # a vertex on the patch's edge reads half lit, not lit.
+    from reroom.rays.sampling import orthonormal_basis
+
+    e1, e2 = orthonormal_basis(n)
+    k = np.arange(footprint_samples) + 0.5
+    r = footprint * np.sqrt(k / footprint_samples)
+    a = k * np.pi * (3.0 - 5**0.5)
+    frac = np.zeros(len(p))
+    for rk, ak in zip(r, a, strict=True):
+        q = p + rk * (np.cos(ak) * e1 + np.sin(ak) * e2)
+        frac += _through_opening(caster, window, s, q, n, eps, tolerance, pane)
+    return frac / footprint_samples * np.maximum(n @ s, 0.0)
 
 
 def _fibonacci_directions(count: int) -> np.ndarray:
