@@ -14,8 +14,9 @@ a ray *leaves* the room in (the cube cells' convention). A receiver at ``x`` wit
 ``n`` gets ``E_sun max(0, n . s)`` if the ray from ``x`` along ``s`` leaves through the
 opening (it crosses the rectangle before anything else; the window's own pane faces do
 not block, as in :func:`reroom.invert.portal.window_portal_transfer`), else nothing:
-:func:`sun_transfer`. That transfer is exact (one ray per receiver), so the solve meets
-the sunlit patch with a sharp model of it.
+:func:`sun_transfer`. That transfer is exact (one ray per receiver, or a few over a
+disc the size of the receiver's footprint, as an HDR vertex averages the pixels around
+it), so the solve meets the sunlit patch with a sharp model of it.
 
 :func:`find_sun` finds ``s`` without ground truth, from the HDR radiance: the sunlit
 patch is the set of receivers whose rays along ``s`` leave through the opening, and it
@@ -51,7 +52,15 @@ from numpy.typing import ArrayLike
 from reroom.invert.windows import WindowOpening
 from reroom.rays import RayCaster
 
-__all__ = ["SunEstimate", "find_sun", "sun_transfer"]
+__all__ = [
+    "SUN_MAP_HEIGHT",
+    "SunEstimate",
+    "add_sun_to_map",
+    "find_sun",
+    "fold_sun_into_cells",
+    "sun_power",
+    "sun_transfer",
+]
 
 #: Rec. 709 luminance weights.
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -201,11 +210,17 @@ def sun_transfer(
         does not block its own light).
     pane_faces:
         ``(F,)`` bool: the window's own faces, which do not block (None: all block).
+    footprint, footprint_samples:
+        With ``footprint > 0``, the lit fraction of a disc of that radius (metres) on
+        each receiver's tangent plane, from ``footprint_samples`` rays on a Vogel
+        spiral: a vertex on the patch's edge then reads part lit, as its HDR radiance
+        does. 0: the point alone.
 
     Returns
     -------
     ndarray, shape (N,)
-        ``max(0, n . s)`` where the ray along ``s`` leaves through the opening, else 0.
+        ``max(0, n . s)`` times the lit fraction (1 or 0 for a point): the ray along
+        ``s`` leaves through the opening.
 
     Examples
     --------
