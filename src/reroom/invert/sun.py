@@ -293,7 +293,7 @@ def find_sun(
     radiance: ArrayLike,
     *,
     pane_faces: ArrayLike | None = None,
-    coarse: int = 3000,
+    coarse: int = 1200,
     max_receivers: int = 6000,
     min_lit: int = 20,
     min_score: float = 12.0,
@@ -371,11 +371,17 @@ def find_sun(
         lit = _through_opening(caster, window, d, p[r], n[r], caster.eps, 0.02, pane)
         if lit.sum() < 3:
             return -np.inf, 0.0, int(lit.sum())
-        dist = cKDTree(front[idx][lit]).query(front[idx][~lit], distance_upper_bound=neighbourhood)[
-            0
-        ]
+        pts = front[idx]
+        lp = pts[lit]
+        # Only unlit receivers in the lit set's box (grown by the ring) can be in the
+        # ring: the query stays small however large the room.
+        near = ~lit & np.all(
+            (pts >= lp.min(axis=0) - neighbourhood) & (pts <= lp.max(axis=0) + neighbourhood),
+            axis=1,
+        )
+        dist = cKDTree(lp).query(pts[near], distance_upper_bound=neighbourhood)[0]
         a = y[idx][lit]
-        b = y[idx][~lit][np.isfinite(dist)]
+        b = y[idx][near][np.isfinite(dist)]
         if len(b) < 3:
             return -np.inf, 0.0, int(lit.sum())
         t = (a.mean() - b.mean()) / np.sqrt(a.var() / len(a) + b.var() / len(b) + 1e-12)
