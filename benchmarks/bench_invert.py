@@ -212,6 +212,8 @@ def speed_table(scan: str, out: str | None = None, options: dict | None = None) 
     for key in ("load", "hemisphere_transfer", "direct_transfer", "near_filter", "per_vertex"):
         if key in tm:
             print(f"| {key} | {tm[key]:.1f} |")
+        if key == "direct_transfer" and "window_sun" in tm:
+            print(f"| of which the windows' sun search | {tm['window_sun']:.1f} |")
     print(f"| solve (without the near filter) | {solve_only:.1f} |")
     if "refine_points" in tm:
         print(f"| refine_points (search, transfer, second solve) | {refine:.1f} |")
