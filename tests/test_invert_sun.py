@@ -171,3 +171,10 @@ def test_sun_transfer_footprint_softens_only_the_patchs_edge() -> None:
     edge = (soft > 0) & (soft < SUN[2] - 1e-9)
     assert edge.sum() > 20 and not inside[edge].any()
     assert soft.sum() == pytest.approx(point.sum(), rel=0.03)
+
+
+@pytest.mark.parametrize("bad", [[0.0, 0.0, 0.0], [np.nan, -1.0, 0.5]])
+def test_sun_transfer_refuses_a_direction_that_is_not_one(bad: list[float]) -> None:
+    mesh, _ = _room()
+    with pytest.raises(ValueError, match="sun's direction"):
+        sun_transfer(RayCaster(mesh), WINDOW, bad, [[1.0, 1.0, 0.0]], [[0.0, 0.0, 1.0]])

@@ -237,7 +237,10 @@ def sun_transfer(
     [1.0, 0.0]
     """
     s = np.asarray(direction, np.float64).reshape(3)
-    s = s / np.linalg.norm(s)
+    length = float(np.linalg.norm(s))
+    if not np.isfinite(length) or length == 0.0:
+        raise ValueError(f"the sun's direction must be a finite non-zero vector, got {s.tolist()}")
+    s = s / length
     p = np.asarray(points, np.float64).reshape(-1, 3)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
     pane = None if pane_faces is None else np.asarray(pane_faces, bool)
