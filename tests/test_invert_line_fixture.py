@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -104,12 +106,19 @@ def test_the_pipeline_drops_the_prior_for_an_unresolved_fixture() -> None:
         [[0, 2, 1], [0, 3, 2]],
     )
     notes: list[str] = []
-    shape, info = _line_open_shape(housing, "tube", geometry, basis, InvertOptions(), notes)
+    scan = Path("no-scan-here")
+    shape, info, g = _line_open_shape(
+        scan, housing, "tube", geometry, basis, InvertOptions(), notes
+    )
     assert shape is not None and not notes and len(info["open_fraction"]) == 8 * 3
+    assert g is geometry
     block = trimesh.creation.box(extents=(1.4, 0.16, 0.12))
     block.apply_translation((0.6, 0.0, 0.06))  # a fused channel: the tube half inside
-    shape, info = _line_open_shape(block, "tube", geometry, basis, InvertOptions(), notes)
+    # Without the photos' fixture (tests/test_invert_line_photos.py has it with photos).
+    no_photos = InvertOptions(line_photo_fixture=False)
+    shape, info, _ = _line_open_shape(scan, block, "tube", geometry, basis, no_photos, notes)
     assert shape is None and info["fixture_inside_fraction"] > MAX_INSIDE_FRACTION
     assert "does not resolve the fixture of line light 'tube'" in notes[0]
+    assert "no shape prior" in notes[0]
     off = InvertOptions(line_shape_prior=0.0)
-    assert _line_open_shape(housing, "tube", geometry, basis, off, []) == (None, {})
+    assert _line_open_shape(scan, housing, "tube", geometry, basis, off, []) == (None, {}, geometry)

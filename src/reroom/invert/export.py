@@ -356,12 +356,15 @@ def _line_entry(
     if "shadow_clearance" in info:
         dist["shadow_clearance"] = float(info["shadow_clearance"])
     if "open_fraction" in info:
-        # The shape prior: the fraction of the tube the scanned fixture leaves open.
+        # The shape prior: the fraction of the tube the fixture leaves open.
         dist["open_fraction"] = np.asarray(info["open_fraction"], float).reshape(shape).tolist()
         dist["tube_radius"] = float(info["tube_radius"])
     if "fixture_inside_fraction" in info:
-        # The prior was dropped: the scan does not resolve the fixture around the tube.
+        # The scan does not resolve the fixture around the tube: the prior was dropped,
+        # or its fixture (and the tube's axis) came from the photos.
         dist["fixture_inside_fraction"] = float(info["fixture_inside_fraction"])
+    if "fixture_from_photos" in info:
+        dist["fixture_from_photos"] = info["fixture_from_photos"]
     if support is not None:
         sup = np.asarray(support, float)
         dist["support"] = sup.reshape(shape).tolist()

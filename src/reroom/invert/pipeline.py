@@ -18,6 +18,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -112,6 +113,10 @@ class InvertOptions:
         resolve (:func:`reroom.invert.line_fixture.inside_fraction`).
     line_fixture_samples : int
         Points on the tube per direction when integrating the open fraction.
+    line_photo_fixture : bool
+        Where the scan does not resolve a tube's fixture, take the tube's axis and radius
+        and a trough around it from the photos (:mod:`reroom.invert.line_photos`)
+        instead of dropping the shape prior.
     rays_per_receiver : int
         Hemisphere rays per receiving vertex.
     receiver_voxel : float
@@ -258,6 +263,7 @@ class InvertOptions:
     line_clearance: float = 0.3
     line_shape_prior: float = 1e5
     line_fixture_samples: int = 64
+    line_photo_fixture: bool = True
     rays_per_receiver: int = 512
     receiver_voxel: float = 0.1
     line_segments: int = 16
@@ -407,44 +413,142 @@ DEFAULT_TUBE_RADIUS = 0.013
 
 
 def _line_open_shape(
-    mesh, name: str, geometry: dict, basis: LineBasis, options: InvertOptions,
+    scan: Path, mesh, name: str, geometry: dict, basis: LineBasis, options: InvertOptions,
     notes: list[str],
-) -> tuple[np.ndarray | None, dict]:  # fmt: skip
-    """The open fraction of a line light's tube per bin, from the scanned fixture.
+) -> tuple[np.ndarray | None, dict, dict]:  # fmt: skip
+    """The open fraction of a line light's tube per bin, its info, and its geometry.
 
-    ``(None, {})`` when the prior is off. ``(None, {...})`` with a note when the scan does
-    not resolve the fixture (rays from the tube leave through back faces:
-    :func:`~reroom.invert.line_fixture.inside_fraction`, e.g. a fused scan that closed the
-    baffles' channel around the tube) or hides the tube in every direction: the prior
-    would then pull the profile toward a wrong shape.
+    From the scanned fixture where the scan resolves it. Where it does not (rays from
+    the tube leave through back faces: :func:`~reroom.invert.line_fixture.inside_fraction`,
+    e.g. a fused scan that closed the baffles' channel around the tube), from the
+    photos (:mod:`reroom.invert.line_photos`): the tube's axis and radius from its
+    saturated stripes (the returned geometry then has them: the transfer uses that
+    axis) and a trough whose cut-off is where the photos lose the tube. ``(None, {...},
+    geometry)`` with a note when neither can be had, or the fixture hides the tube
+    everywhere: the prior would then pull the profile toward a wrong shape. ``(None,
+    {}, geometry)`` when the prior is off.
     """
     if options.line_shape_prior <= 0:
-        return None, {}
+        return None, {}, geometry
     radius = float(geometry.get("radius", DEFAULT_TUBE_RADIUS))
     p0, p1 = np.asarray(geometry["p0"], float), np.asarray(geometry["p1"], float)
+    up = np.asarray(geometry["d_perp"], float)
     fixture = scan_fixture_caster(mesh.vertices, mesh.faces, p0, p1, radius, options.line_clearance)
+    info: dict[str, Any] = {}
+    if fixture is not None:
+        inside = inside_fraction(fixture, p0, p1, radius, options.line_clearance)
+        if inside > MAX_INSIDE_FRACTION:
+            why = (
+                f"the scan does not resolve the fixture of line light {name!r} "
+                f"({100 * inside:.0f} % of the rays from its tube leave through back faces: "
+                "the tube is partly inside the scanned geometry)"
+            )
+            info["fixture_inside_fraction"] = round(inside, 4)
+            found = (
+                _photo_trough(scan, mesh, name, geometry, options, notes)
+                if options.line_photo_fixture
+                else None
+            )
+            if found is None:
+                notes.append(f"{why}: no shape prior")
+                return None, info, geometry
+            fixture, geometry, photo_info = found
+            notes.append(f"{why}: its tube and a trough from the photos instead")
+            info["fixture_from_photos"] = photo_info
+            radius = float(geometry["radius"])
+            p0, p1 = np.asarray(geometry["p0"], float), np.asarray(geometry["p1"], float)
     if fixture is None:
         open_frac = np.ones(basis.size)
     else:
-        inside = inside_fraction(fixture, p0, p1, radius, options.line_clearance)
-        if inside > MAX_INSIDE_FRACTION:
-            notes.append(
-                f"the scan does not resolve the fixture of line light {name!r} "
-                f"({100 * inside:.0f} % of the rays from its tube leave through back faces: "
-                "the tube is partly inside the scanned geometry): no shape prior"
-            )
-            return None, {"fixture_inside_fraction": round(inside, 4)}
         open_frac = line_open_fraction(
-            fixture.occluded, p0, p1, np.asarray(geometry["d_perp"], float), radius, basis,
+            fixture.occluded, p0, p1, up, radius, basis,
             options.line_clearance, samples=options.line_fixture_samples, seed=options.seed,
         )  # fmt: skip
-    info = {"open_fraction": np.round(open_frac, 4).tolist(), "tube_radius": radius}
+    info.update({"open_fraction": np.round(open_frac, 4).tolist(), "tube_radius": radius})
     if not np.any(open_frac > 0):
         notes.append(
             f"the scanned fixture of line light {name!r} hides its tube everywhere: no shape prior"
         )
-        return None, info
-    return open_frac, info
+        return None, info, geometry
+    return open_frac, info, geometry
+
+
+def _photo_trough(
+    scan: Path, mesh, name: str, geometry: dict, options: InvertOptions, notes: list[str]
+) -> tuple[Any, dict, dict] | None:
+    """A line light's tube and trough from the photos (None, with a note, when they fail)."""
+    from reroom.invert.line_photos import (
+        caster_without_fixture,
+        fixture_extent,
+        observe_tube,
+        trough_edges,
+        trough_fixture,
+    )
+    from reroom.scan import load_scan
+
+    p0, p1 = np.asarray(geometry["p0"], float), np.asarray(geometry["p1"], float)
+    up = np.asarray(geometry["d_perp"], float)
+    try:
+        frames = load_scan(scan, check_images=False).frames
+    except (ReroomError, OSError, ValueError) as exc:
+        notes.append(f"line light {name!r}: the photos cannot be read for its fixture ({exc})")
+        return None
+    others = caster_without_fixture(mesh.vertices, mesh.faces, p0, p1)
+    if others is None:
+        return None
+
+    def load(frame):
+        try:
+            return frame.load_image()
+        except (ReroomError, OSError, ValueError) as exc:
+            notes.append(f"line light {name!r}: frame {frame.index} skipped ({exc})")
+            return np.zeros((frame.intrinsics.height, frame.intrinsics.width, 3), np.uint8)
+
+    tube = observe_tube(frames, load, others, p0, p1, up)
+    summary = tube.summary()
+    if tube.residual_m is None or tube.radius is None:
+        notes.append(
+            f"line light {name!r}: too few clean views of its tube for its axis "
+            f"({tube.stripe_samples} stripe samples)"
+        )
+        return None
+    radius = float(tube.radius)
+    extent = fixture_extent(mesh.vertices, tube.p0, tube.p1, up, radius)
+    if extent is None:
+        notes.append(f"line light {name!r}: no scanned fixture around its tube for a trough")
+        return None
+    bottom, top = extent
+    found = trough_edges(tube, bottom, radius) if bottom > radius else None
+    if found is None:
+        notes.append(
+            f"line light {name!r}: the photos bound no trough around its tube "
+            f"(cut-off {summary['cutoff_deg']}, scanned underside {bottom:.3f} m below the axis)"
+        )
+        return None
+    edges, how = found
+    top = max(top, radius + 0.01)
+    caster = trough_fixture(tube.p0, tube.p1, up, edges, bottom, top)
+    new = dict(geometry)
+    new.update(
+        {
+            "p0": np.round(tube.p0, 6).tolist(),
+            "p1": np.round(tube.p1, 6).tolist(),
+            "radius": round(radius, 5),
+            "axis_from": "photos",
+        }
+    )
+    summary.update(
+        {
+            "trough_edges_m": [round(e, 4) for e in edges],
+            "trough_edges_from": how,
+            "trough_bottom_m": round(bottom, 4),
+            "trough_top_m": round(top, 4),
+            "detected_p0": geometry["p0"],
+            "detected_p1": geometry["p1"],
+            "detected_radius": geometry.get("radius"),
+        }
+    )
+    return caster, new, summary
 
 
 def _window_photos(
@@ -795,7 +899,10 @@ def run_invert(
                 }
             )
         elif light.type == "line":
-            shape, open_info = _line_open_shape(mesh, light.name, g, line_basis, options, notes)
+            shape, open_info, g = _line_open_shape(
+                scan, mesh, light.name, g, line_basis, options, notes
+            )
+            light.geometry = g
             f = line_light_transfer(
                 caster,
                 p_recv,

@@ -1,0 +1,463 @@
+"""A line light's tube and fixture from the photos, where the scan does not resolve them.
+
+A depth-fused (TSDF) scan closes a baffled fixture into a solid block with the tube half
+inside it (:func:`reroom.invert.line_fixture.inside_fraction`). The detected axis then
+sits on the block's draped underside (4 cm low and 2 cm to the side on the fused
+`furnished` scan) and the block says nothing about where the fixture lets light out, so
+the line lights' shape prior (:func:`reroom.invert.line_fixture.line_open_fraction`)
+had to be dropped. The photos see both:
+
+* **The axis.** A tube clips to a thin saturated stripe in every auto-exposed photo
+  that sees it. Where the fixture leaves it whole (views within ``stripe_max_alpha``
+  of straight below, across the tube), the stripe's middle is the projection of the
+  axis: each stripe sample back-projects to a ray that passes through the axis, and
+  the axis's offset in its cross-section is the robust least-squares point of those
+  rays (a linear problem, two unknowns). :func:`observe_tube` returns it.
+* **The radius**, from the stripe's width: the tube saturates a pixel as soon as it
+  covers a small part of it, so the run of saturated samples along the stripe's
+  normal (bilinear between pixel centres) spans about the tube's projected width.
+* **The cut-off.** Seen from further to the side, baffles hide the tube: a frame that
+  sees the tube's place (nothing else in the way) shows the stripe or does not. Across
+  the tube the angle where the stripe goes out is where the baffle's edge meets the line
+  tangent to the tube's far side (:attr:`PhotoTube.cutoff_deg`, per side).
+
+:func:`trough_fixture` turns that into a fixture the shape prior can cast rays at: a
+trough of two baffles under a ceiling, the baffles' bottom edges at the scanned
+block's lowest point (the fused surface keeps the block's outside) and as far out as
+the photos put them, the ceiling at the block's highest point. Written by hand:
+no library reads a tube out of photos; the rays go to Embree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.ndimage import map_coordinates
+
+from reroom.rays import RayCaster
+from reroom.rays.geometry import segment_distance
+
+__all__ = [
+    "PhotoTube",
+    "TubeSighting",
+    "cutoff_angle",
+    "observe_tube",
+    "trough_edges",
+    "trough_fixture",
+]
+
+
+@dataclass(frozen=True)
+class TubeSighting:
+    """One frame's view of a tube's place.
+
+    ``alpha_deg`` is the direction from the tube to the camera in the tube's
+    cross-section, from straight down (0) toward the line's ``side`` (positive) or away
+    from it (negative); ``bright`` says whether the photo shows the saturated stripe at
+    most of the ``samples`` axis points it sees unobstructed; ``width_m`` is the
+    stripe's median width there (metres at the tube; None where no clean stripe was
+    found): the part of the tube the fixture leaves visible.
+    """
+
+    frame: int
+    alpha_deg: float
+    bright: bool
+    samples: int
+    width_m: float | None = None
+
+
+@dataclass
+class PhotoTube:
+    """What the photos say about a line light's tube (see the module notes).
+
+    Attributes
+    ----------
+    p0, p1:
+        The axis, moved by ``offset`` (metres along ``side`` and ``up``) from the axis
+        given; the given one when the stripes were too few (``stripe_samples`` below
+        the minimum).
+    stripe_samples, stripe_frames:
+        Stripe centres used for the axis and the frames they came from.
+    residual_m:
+        Robust spread (1.4826 MAD) of the stripe rays' distances to the fitted axis.
+    radius:
+        Median half-width of the saturated stripes (metres), None without stripes.
+    sightings:
+        Every frame that sees the tube's place.
+    cutoff_deg:
+        The cut-off across the tube on the ``-side`` and ``+side`` (positive degrees
+        from straight down; None where the photos show no frame that lost the tube).
+    """
+
+    p0: np.ndarray
+    p1: np.ndarray
+    offset: tuple[float, float]
+    stripe_samples: int
+    stripe_frames: int
+    residual_m: float | None
+    radius: float | None
+    sightings: list[TubeSighting] = field(default_factory=list)
+    cutoff_deg: tuple[float | None, float | None] = (None, None)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready figures (for ``invert_info.json``)."""
+        bright = sum(s.bright for s in self.sightings)
+        return {
+            "axis_offset_m": [round(self.offset[0], 4), round(self.offset[1], 4)],
+            "stripe_samples": self.stripe_samples,
+            "stripe_frames": self.stripe_frames,
+            "axis_residual_m": None if self.residual_m is None else round(self.residual_m, 4),
+            "radius_m": None if self.radius is None else round(self.radius, 4),
+            "frames_seeing": len(self.sightings),
+            "frames_bright": int(bright),
+            "cutoff_deg": [None if c is None else round(c, 1) for c in self.cutoff_deg],
+        }
+
+
+def _frame_axes(p0: np.ndarray, p1: np.ndarray, up: ArrayLike) -> tuple[np.ndarray, ...]:
+    """Unit axis direction, ``up`` made perpendicular to it, and ``side = dh x up``."""
+    dh = p1 - p0
+    length = float(np.linalg.norm(dh))
+    if length == 0:
+        raise ValueError("line light has zero length")
+    dh = dh / length
+    u = np.asarray(up, float).reshape(3)
+    u = u - (u @ dh) * dh
+    if np.linalg.norm(u) < 1e-9:
+        raise ValueError("up is parallel to the line light")
+    u = u / np.linalg.norm(u)
+    return dh, u, np.cross(dh, u)
+
+
+def cutoff_angle(angles: ArrayLike, bright: ArrayLike, min_dark: int = 2) -> float | None:
+    """The angle that best splits bright sightings (below it) from dark ones (above).
+
+    ``angles`` are positive degrees from straight down on one side of the tube. The
+    split minimises the sightings on the wrong side of it (ties: the widest gap) and
+    lies halfway between the last bright and the first dark angle. None with fewer than
+    ``min_dark`` dark sightings beyond the nearest bright one or no bright sighting.
+
+    >>> cutoff_angle([10, 30, 45, 50, 61, 65], [True, True, True, True, False, False])
+    55.5
+    """
+    a = np.asarray(angles, float)
+    b = np.asarray(bright, bool)
+    if not b.any() or np.count_nonzero(~b & (a > a[b].min())) < min_dark:
+        return None
+    order = np.argsort(a)
+    a, b = a[order], b[order]
+    best, split = None, None
+    for k in range(1, len(a)):
+        if a[k] == a[k - 1]:
+            continue
+        wrong = np.count_nonzero(~b[:k]) + np.count_nonzero(b[k:])
+        key = (wrong, -(a[k] - a[k - 1]))
+        if best is None or key < best:
+            best, split = key, 0.5 * (a[k] + a[k - 1])
+    return None if split is None else float(split)
+
+
+def _stripe_centre(
+    img: np.ndarray, uv: np.ndarray, normal: np.ndarray, level: float, half: float = 6.0
+) -> tuple[float, float] | None:
+    """Offset (pixels along ``normal``) of the saturated run's middle at ``uv``, and its length.
+
+    None when the run touches the ends of the profile or is broken (another bright
+    thing beside the tube).
+    """
+    s = np.arange(-half, half + 1e-9, 0.1)
+    q = uv[None, :] + s[:, None] * normal[None, :]
+    prof = map_coordinates(img, [q[:, 1] - 0.5, q[:, 0] - 0.5], order=1, mode="nearest")
+    run = np.flatnonzero(prof >= level)
+    if len(run) == 0 or run[0] == 0 or run[-1] == len(s) - 1:
+        return None
+    if run[-1] - run[0] + 1 != len(run):
+        return None
+    return 0.5 * (s[run[0]] + s[run[-1]]), float(s[run[-1]] - s[run[0]])
+
+
+def observe_tube(
+    frames: Sequence[Any],
+    load_image: Callable[[Any], np.ndarray],
+    caster: RayCaster,
+    p0: ArrayLike,
+    p1: ArrayLike,
+    up: ArrayLike,
+    *,
+    points: int = 21,
+    saturation: int = 245,
+    stripe_max_alpha: float = 35.0,
+    min_stripes: int = 20,
+) -> PhotoTube:
+    """The tube's axis, radius and cut-off angles from the frames (see the module notes).
+
+    Parameters
+    ----------
+    frames:
+        :class:`reroom.scan.Frame` objects (``project``, ``pixel_rays``, ``center``).
+    load_image:
+        ``load_image(frame) -> (H, W, 3)`` 8-bit image (called only for frames that see
+        the tube's place).
+    caster:
+        The scan's geometry *without* the tube's fixture (e.g. the faces farther than
+        25 cm from the axis): what may stand between a camera and the tube.
+    p0, p1, up:
+        The detected axis and the line's ``d_perp``.
+    points:
+        Axis points sampled (5-95 % of the length).
+    saturation:
+        8-bit level (channel mean) at or above which a pixel counts as saturated.
+    stripe_max_alpha:
+        Only views within this many degrees of straight below, across the tube, give
+        stripe centres (further out a baffle may hide part of the tube and shift them).
+    min_stripes:
+        Fewer stripe centres than this leave the axis where it was.
+    """
+    a0, a1 = np.asarray(p0, float).reshape(3), np.asarray(p1, float).reshape(3)
+    dh, u, side = _frame_axes(a0, a1, up)
+    t = np.linspace(0.05, 0.95, points)
+    pts = a0 + t[:, None] * (a1 - a0)
+    mid = pts.mean(axis=0)
+    sightings: list[TubeSighting] = []
+    rows, rhs, widths, stripe_frames = [], [], [], set()
+    for fr in frames:
+        c = np.asarray(fr.center, float)
+        w = c - mid
+        if w @ u >= 0:  # a camera level with or above the tube sees into its fixture's top
+            continue
+        uv, depth, inside = fr.project(pts)
+        if not inside.any():
+            continue
+        dirs = pts - c
+        dist = np.linalg.norm(dirs, axis=1)
+        hits = caster.intersect(np.repeat(c[None], len(pts), 0), dirs / dist[:, None])
+        seen = inside & ~(hits.hit & (hits.t < dist - 0.05))
+        if not seen.any():
+            continue
+        img8 = np.asarray(load_image(fr))
+        lum = img8.astype(np.float32).mean(axis=2)
+        h, wd = lum.shape
+        alpha = float(np.degrees(np.arctan2(w @ side, -(w @ u))))
+        ks = np.flatnonzero(seen)
+        bright = 0
+        for k in ks:
+            i, j = int(uv[k, 1]), int(uv[k, 0])
+            patch = img8[max(i - 1, 0) : min(i + 2, h), max(j - 1, 0) : min(j + 2, wd)]
+            bright += bool((patch.min(axis=2) >= saturation).any())
+        is_bright = bright > 0.5 * len(ks)
+        frame_widths = []
+        if is_bright:
+            uv2, _, _ = fr.project(pts + 0.01 * dh)
+            f_px = float(fr.intrinsics.fx)
+            for k in ks:
+                tan = uv2[k] - uv[k]
+                if np.linalg.norm(tan) < 1e-9:
+                    continue
+                tan = tan / np.linalg.norm(tan)
+                normal = np.array([-tan[1], tan[0]])
+                found = _stripe_centre(lum, uv[k], normal, saturation)
+                if found is None:
+                    continue
+                off, run = found
+                frame_widths.append(run * depth[k] / f_px)
+                if abs(alpha) > stripe_max_alpha:
+                    continue
+                o, d = fr.pixel_rays((uv[k] + off * normal)[None, :])
+                o, d = o[0], d[0]
+                along = d @ dh
+                if abs(along) > 0.999:
+                    continue
+                # Where the ray crosses the plane of the cross-section through pts[k].
+                x = o + ((pts[k] - o) @ dh / along) * d if abs(along) > 1e-9 else o
+                rel = x - pts[k]
+                ys, zs = rel @ side, rel @ u
+                ds, du = d @ side, d @ u
+                n = np.hypot(ds, du)
+                ds, du = ds / n, du / n
+                # The axis at t[k], (1 - t) (s0, v0) + t (s1, v1), lies on the ray's line.
+                tk = t[k]
+                rows.append([du * (1 - tk), -ds * (1 - tk), du * tk, -ds * tk])
+                rhs.append(ys * du - zs * ds)
+                widths.append(frame_widths[-1])
+                stripe_frames.add(int(fr.index))
+        width = float(np.median(frame_widths)) if frame_widths else None
+        sightings.append(TubeSighting(int(fr.index), alpha, is_bright, len(ks), width))
+    ends, residual, radius = np.zeros(4), None, None
+    if widths:
+        radius = float(np.median(widths)) / 2.0
+    if len(rows) >= min_stripes:
+        a, b = np.asarray(rows), np.asarray(rhs)
+        sol = np.linalg.lstsq(a, b, rcond=None)[0]
+        res = a @ sol - b
+        for _ in range(8):  # Huber-style reweighting: a stripe beside a bright neighbour
+            scale = 1.4826 * np.median(np.abs(res)) + 1e-6
+            wgt = 1.0 / np.maximum(1.0, np.abs(res) / (2.0 * scale))
+            sol = np.linalg.lstsq(a * wgt[:, None], b * wgt, rcond=None)[0]
+            res = a @ sol - b
+        ends = sol
+        residual = float(1.4826 * np.median(np.abs(res)))
+    angles = np.array([s.alpha_deg for s in sightings])
+    bright = np.array([s.bright for s in sightings], bool)
+    cut = []
+    for sign in (-1.0, 1.0):
+        m = sign * angles > 0
+        cut.append(cutoff_angle(sign * angles[m], bright[m]) if m.any() else None)
+    # The fit gives the axis at t = 0 and t = 1 of the sampled span, i.e. at p0 and p1.
+    return PhotoTube(
+        a0 + ends[0] * side + ends[1] * u,
+        a1 + ends[2] * side + ends[3] * u,
+        (float(0.5 * (ends[0] + ends[2])), float(0.5 * (ends[1] + ends[3]))),
+        len(rows),
+        len(stripe_frames),
+        residual,
+        radius,
+        sightings,
+        (cut[0], cut[1]),
+    )
+
+
+def _edge_at_hide(alpha_deg: float, radius: float, bottom: float) -> float:
+    """Edge distance whose baffle hides the whole tube from ``alpha_deg`` on.
+
+    The edge at depth ``bottom`` on the line tangent to the tube's far side:
+    ``y cos a - bottom sin a = -r``.
+    """
+    a = np.radians(alpha_deg)
+    return float((bottom * np.sin(a) - radius) / max(np.cos(a), 1e-6))
+
+
+def trough_edges(
+    tube: PhotoTube, bottom: float, radius: float, partial: float = 0.8
+) -> tuple[tuple[float, float], list[str]] | None:
+    """Distances from the axis to the baffles' bottom edges on the ``-side`` and ``+side``.
+
+    Per side, from the sightings there (``bottom``: the edges' depth below the axis):
+
+    * a bright sighting whose stripe is narrower than ``partial`` of the tube's width
+      sees the part of the tube the edge leaves, ``w = r + y cos a - bottom sin a``, so
+      ``y = (w - r + bottom sin a) / cos a``; the median over such sightings;
+    * the cut-off bracket (last bright to first dark angle) bounds ``y`` between the
+      edges that would hide the tube at those two angles; without partial sightings
+      the edge hides it halfway between them.
+
+    A side the photos do not bound takes the other's (fixtures are symmetric). Returns
+    the edges and how each was found, or None without any cut-off or when an edge would
+    fall within the tube's own width.
+    """
+    out: list[float | None] = []
+    how: list[str] = []
+    for sign, cut in zip((-1.0, 1.0), tube.cutoff_deg, strict=True):
+        if cut is None:
+            out.append(None)
+            how.append("mirrored")
+            continue
+        a = np.array([sign * s.alpha_deg for s in tube.sightings])
+        b = np.array([s.bright for s in tube.sightings], bool)
+        side = a > 0
+        lo = float(a[side & b & (a < cut)].max())
+        hi = float(a[side & ~b & (a > cut)].min())
+        y_lo, y_hi = _edge_at_hide(lo, radius, bottom), _edge_at_hide(hi, radius, bottom)
+        est = []
+        for s, ai in zip(tube.sightings, a, strict=True):
+            if ai > 0 and s.bright and s.width_m is not None and s.width_m < partial * 2 * radius:
+                r_a = np.radians(ai)
+                est.append((s.width_m - radius + bottom * np.sin(r_a)) / np.cos(r_a))
+        if est:
+            out.append(float(np.clip(np.median(est), y_lo, y_hi)))
+            how.append(f"{len(est)} partial views, hidden from {lo:.1f}-{hi:.1f} deg")
+        else:
+            out.append(0.5 * (y_lo + y_hi))
+            how.append(f"hidden from {lo:.1f}-{hi:.1f} deg")
+    known = [y for y in out if y is not None]
+    if not known:
+        return None
+    edges = tuple(y if y is not None else known[0] for y in out)
+    if min(edges) <= radius:
+        return None
+    return (float(edges[0]), float(edges[1])), how
+
+
+def trough_fixture(
+    p0: ArrayLike,
+    p1: ArrayLike,
+    up: ArrayLike,
+    edges: tuple[float, float],
+    bottom: float,
+    top: float,
+    overhang: float = 0.05,
+    ceiling: float = 0.5,
+) -> RayCaster:
+    """A ray caster of a trough around the tube: two baffles under a ceiling.
+
+    ``edges`` are the baffles' distances from the axis on the ``-side`` and ``+side``,
+    ``bottom`` and ``top`` the metres below and above the axis where they end. The
+    baffles run ``overhang`` beyond the tube's ends, which stay open; the top is a
+    plane reaching ``ceiling`` metres beyond the trough on every side (the housing, or
+    the ceiling the fixture hangs from: light that leaves the ends upwards meets it a
+    few centimetres on, as it would the scanned ceiling).
+    """
+    a0, a1 = np.asarray(p0, float).reshape(3), np.asarray(p1, float).reshape(3)
+    dh, u, side = _frame_axes(a0, a1, up)
+    e0, e1 = a0 - overhang * dh, a1 + overhang * dh
+    quads = []
+    for sgn, e in ((-1.0, edges[0]), (1.0, edges[1])):
+        lo, hi = sgn * e * side - bottom * u, sgn * e * side + top * u
+        quads.append([e0 + lo, e1 + lo, e1 + hi, e0 + hi])
+    c0, c1 = a0 - ceiling * dh + top * u, a1 + ceiling * dh + top * u
+    s0, s1 = -(edges[0] + ceiling) * side, (edges[1] + ceiling) * side
+    quads.append([c0 + s0, c1 + s0, c1 + s1, c0 + s1])
+    v = np.asarray(quads, float).reshape(-1, 3)
+    f = np.array([[4 * k + i for i in tri] for k in range(3) for tri in ((0, 1, 2), (0, 2, 3))])
+    return RayCaster(v, f, eps=1e-6)
+
+
+def fixture_extent(
+    vertices: ArrayLike,
+    p0: ArrayLike,
+    p1: ArrayLike,
+    up: ArrayLike,
+    radius: float,
+    reach: float = 0.15,
+) -> tuple[float, float] | None:
+    """Metres below and above the axis that the scanned geometry around the tube spans.
+
+    Over the vertices within ``reach`` of the axis (across), along its length (10 cm
+    more at each end, where a fixture's ends are) and off
+    the tube itself (farther than ``max(2 r, r + 1 cm)`` from the axis, as
+    :func:`reroom.invert.line_fixture.scan_fixture_caster` has it): the 2nd percentile
+    of their depth below it and the 98th of their height above it (on a fused scan the
+    block's underside and the ceiling). None with fewer than 4 such vertices.
+    """
+    a0, a1 = np.asarray(p0, float).reshape(3), np.asarray(p1, float).reshape(3)
+    dh, u, side = _frame_axes(a0, a1, up)
+    v = np.asarray(vertices, float)
+    rel = v - a0
+    along = rel @ dh
+    length = float(np.linalg.norm(a1 - a0))
+    across = np.hypot(rel @ side, rel @ u)
+    near = (
+        (along > -0.1)
+        & (along < length + 0.1)
+        & (np.abs(rel @ side) < reach)
+        & (np.abs(rel @ u) < 0.3)
+        & (across > max(2.0 * radius, radius + 0.01))
+    )
+    if np.count_nonzero(near) < 4:
+        return None
+    h = rel[near] @ u
+    return float(-np.percentile(h, 2)), float(np.percentile(h, 98))
+
+
+def caster_without_fixture(vertices: ArrayLike, faces: ArrayLike, p0, p1, clear: float = 0.25):
+    """A caster of the scanned faces farther than ``clear`` from the axis (None if none)."""
+    v = np.asarray(vertices, float)
+    f = np.asarray(faces, np.int64)
+    near = segment_distance(v, np.asarray(p0, float), np.asarray(p1, float)) < clear
+    keep = ~near[f].any(axis=1)
+    if not keep.any():
+        return None
+    return RayCaster(v, f[keep])
