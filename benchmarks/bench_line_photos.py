@@ -17,7 +17,8 @@ never by the pipeline):
 * the cut-off angles per side, the trough's edges, bottom and top against the true
   baffles' half gap and depth below the true axis;
 * the open fraction of the photos' trough against the true fixture's (relative L2 over
-  the bins, in the pipeline's ``LineBasis``), and the seconds taken.
+  the bins, in the pipeline's ``LineBasis``), and of the scanned fixture where the scan
+  resolves it (what the pipeline uses there), and the seconds the photos took.
 """
 
 from __future__ import annotations
@@ -60,7 +61,8 @@ def bench_scan(scan_dir: Path) -> None:
     print(
         "| line | inside | axis across / up at p0, p1 (mm): detected -> photos "
         "| stripes (frames) | radius mm: detected / photos / true | cut-off deg "
-        "| trough edges / bottom / top mm (true half gap / depth) | open fraction L2 | s |"
+        "| trough edges / bottom / top mm (true half gap / depth) "
+        "| open fraction L2: trough / scanned fixture | s |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for light in [x for x in doc["lights"] if x["type"] == "line"]:
@@ -98,6 +100,15 @@ def bench_scan(scan_dir: Path) -> None:
         )  # fmt: skip
         true_open = prof[:, 1] / (2 * truth["radius"] * truth["radiance"][1])
         l2 = np.linalg.norm(ours - true_open) / np.linalg.norm(true_open)
+        scanned = "-"  # the scanned fixture's open fraction, where the scan resolves it
+        if fixture is not None and inside <= 0.05:
+            theirs = line_open_fraction(
+                fixture.occluded, p0, p1, up, radius, basis, opts.line_clearance,
+                samples=opts.line_fixture_samples, seed=opts.seed,
+            )  # fmt: skip
+            scanned = (
+                f"{100 * np.linalg.norm(theirs - true_open) / np.linalg.norm(true_open):.1f} %"
+            )
         baff = truth.get("baffles", {})
         ceiling = max(r["ceiling_z"] for r in gt["layout"]["rooms"])
         # The baffles' bottom below the true axis (the generator hangs them from the ceiling).
@@ -110,7 +121,7 @@ def bench_scan(scan_dir: Path) -> None:
             f"| {info['cutoff_deg']} "
             f"| {1000 * edges[0]:.0f}, {1000 * edges[1]:.0f} / {1000 * info['trough_bottom_m']:.0f}"
             f" / {1000 * info['trough_top_m']:.0f} ({1000 * baff.get('half_gap', np.nan):.0f} / "
-            f"{1000 * depth:.0f}) | {100 * l2:.1f} % | {secs:.1f} |"
+            f"{1000 * depth:.0f}) | {100 * l2:.1f} % / {scanned} | {secs:.1f} |"
         )
 
 

@@ -24,6 +24,7 @@ from reroom.invert.line_photos import (
     trough_fixture,
 )
 from reroom.rays import RayCaster
+from reroom.rays.geometry import segment_distance
 from reroom.scan.camera import Frame, Intrinsics, look_at
 
 AXIS_Z, RADIUS, HALF_GAP, BAFFLE_BOTTOM, CEILING = 2.6, 0.016, 0.07, 2.54, 2.7
@@ -188,3 +189,21 @@ def test_the_pipeline_takes_the_tube_and_trough_from_the_photos(photos, tmp_path
     off = InvertOptions(line_photo_fixture=False)
     shape, info, g = _line_open_shape(tmp_path, mesh, "tube", geometry, basis, off, [])
     assert shape is None and "fixture_from_photos" not in info
+
+
+def test_an_axis_seen_on_one_half_moves_parallel_to_itself(photos) -> None:
+    frames, images = photos
+    mesh, _ = _scene()
+    far = ~(segment_distance(mesh.vertices, P0, P1) < 0.25)[mesh.faces].any(axis=1)
+    # What may stand between a camera and the tube: the room, and a slab under the
+    # tube's second half that hides it from every camera.
+    slab = trimesh.creation.box(extents=(1.25, 10.0, 0.05))
+    slab.apply_translation((0.975, 0.0, 2.3))
+    others = trimesh.util.concatenate([trimesh.Trimesh(mesh.vertices, mesh.faces[far]), slab])
+    shift = np.array([0.0, 0.02, -0.04])
+    tube = observe_tube(
+        frames, lambda f: images[f.index], RayCaster(others), P0 + shift, P1 + shift, UP
+    )
+    assert tube.stripe_samples >= 20
+    np.testing.assert_allclose(tube.p1 - tube.p0, P1 - P0, atol=1e-9)
+    np.testing.assert_allclose(tube.p0, P0, atol=0.004)

@@ -192,6 +192,7 @@ def observe_tube(
     saturation: int = 245,
     stripe_max_alpha: float = 35.0,
     min_stripes: int = 20,
+    search: float = 0.1,
 ) -> PhotoTube:
     """The tube's axis, radius and cut-off angles from the frames (see the module notes).
 
@@ -215,7 +216,12 @@ def observe_tube(
         Only views within this many degrees of straight below, across the tube, give
         stripe centres (further out a baffle may hide part of the tube and shift them).
     min_stripes:
-        Fewer stripe centres than this leave the axis where it was.
+        Fewer stripe centres than this leave the axis where it was. The axis may tilt
+        from the given one only where at least a fifth of them lie on each half of
+        the tube; otherwise it moves parallel to itself.
+    search:
+        Metres on each side of the given axis, at the tube, where the stripe is looked
+        for (plus 3 pixels): the detected axis may be a few centimetres off.
     """
     a0, a1 = np.asarray(p0, float).reshape(3), np.asarray(p1, float).reshape(3)
     dh, u, side = _frame_axes(a0, a1, up)
@@ -223,7 +229,7 @@ def observe_tube(
     pts = a0 + t[:, None] * (a1 - a0)
     mid = pts.mean(axis=0)
     sightings: list[TubeSighting] = []
-    rows, rhs, widths, stripe_frames = [], [], [], set()
+    rows, rhs, widths, stripe_frames, where = [], [], [], set(), []
     for fr in frames:
         c = np.asarray(fr.center, float)
         w = c - mid
@@ -259,7 +265,8 @@ def observe_tube(
                     continue
                 tan = tan / np.linalg.norm(tan)
                 normal = np.array([-tan[1], tan[0]])
-                found = _stripe_centre(lum, uv[k], normal, saturation)
+                half = 3.0 + search * f_px / max(depth[k], 1e-6)
+                found = _stripe_centre(lum, uv[k], normal, saturation, half)
                 if found is None:
                     continue
                 off, run = found
@@ -282,6 +289,7 @@ def observe_tube(
                 tk = t[k]
                 rows.append([du * (1 - tk), -ds * (1 - tk), du * tk, -ds * tk])
                 rhs.append(ys * du - zs * ds)
+                where.append(tk)
                 widths.append(frame_widths[-1])
                 stripe_frames.add(int(fr.index))
         width = float(np.median(frame_widths)) if frame_widths else None
@@ -291,6 +299,10 @@ def observe_tube(
         radius = float(np.median(widths)) / 2.0
     if len(rows) >= min_stripes:
         a, b = np.asarray(rows), np.asarray(rhs)
+        halves = np.asarray(where) < 0.5
+        tilt = min(np.count_nonzero(halves), np.count_nonzero(~halves)) >= 0.2 * len(rows)
+        if not tilt:  # one offset for both ends: the samples cannot pin the direction
+            a = np.stack([a[:, 0] + a[:, 2], a[:, 1] + a[:, 3]], axis=1)
         sol = np.linalg.lstsq(a, b, rcond=None)[0]
         res = a @ sol - b
         for _ in range(8):  # Huber-style reweighting: a stripe beside a bright neighbour
@@ -298,7 +310,7 @@ def observe_tube(
             wgt = 1.0 / np.maximum(1.0, np.abs(res) / (2.0 * scale))
             sol = np.linalg.lstsq(a * wgt[:, None], b * wgt, rcond=None)[0]
             res = a @ sol - b
-        ends = sol
+        ends = sol if tilt else np.concatenate([sol, sol])
         residual = float(1.4826 * np.median(np.abs(res)))
     angles = np.array([s.alpha_deg for s in sightings])
     bright = np.array([s.bright for s in sightings], bool)
