@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.ndimage import map_coordinates
 
+from reroom.invert.line_fixture import _axis
 from reroom.rays import RayCaster
 from reroom.rays.geometry import segment_distance
 
@@ -120,11 +121,7 @@ class PhotoTube:
 
 def _frame_axes(p0: np.ndarray, p1: np.ndarray, up: ArrayLike) -> tuple[np.ndarray, ...]:
     """Unit axis direction, ``up`` made perpendicular to it, and ``side = dh x up``."""
-    dh = p1 - p0
-    length = float(np.linalg.norm(dh))
-    if length == 0:
-        raise ValueError("line light has zero length")
-    dh = dh / length
+    _, dh, _ = _axis(p0, p1)
     u = np.asarray(up, float).reshape(3)
     u = u - (u @ dh) * dh
     if np.linalg.norm(u) < 1e-9:
