@@ -92,6 +92,12 @@ def test_subset_scan_remaps_vertices(tmp_path: Path):
     (scan / "transforms.json").write_text("{}")
     (scan / "ground_truth" / "scene" / "scene.json").write_text("{}")
     (scan / "invert").mkdir()
+    # `reroom run`'s renders: a light's mesh can share the vertex count, not the faces
+    (scan / "render" / "edits").mkdir(parents=True)
+    write_ply(
+        scan / "render" / "edits" / "light.ply", trimesh.Trimesh(mesh.vertices, mesh.faces[::-1])
+    )
+    (scan / "run.json").write_text("{}")
 
     keep = np.ones(n, bool)
     keep[5] = False  # an interior vertex: its six faces go
@@ -124,7 +130,8 @@ def test_subset_scan_remaps_vertices(tmp_path: Path):
     assert np.array_equal(
         read_ply(out / "ground_truth" / "vertices.ply").vertex_attributes["part"], old
     )
-    assert not (out / "invert").exists()
+    assert not (out / "invert").exists() and not (out / "render").exists()
+    assert not (out / "run.json").exists()
     with pytest.raises(ValueError, match="must not be"):
         subset_scan(scan, keep, scan / "sub")
     with pytest.raises(ValueError, match="keep has shape"):

@@ -23,7 +23,7 @@ import scipy.sparse as sp
 
 from reroom.io.atomic import atomic_path, atomic_write_json
 
-__all__ = ["CHUNK_FRACTION", "delete_chunks", "vertex_adjacency", "subset_scan"]
+__all__ = ["CHUNK_FRACTION", "DERIVED_OUTPUTS", "delete_chunks", "subset_scan", "vertex_adjacency"]
 
 #: Size of one deleted region, as a fraction of the vertex count (thesis: 5 %).
 CHUNK_FRACTION = 0.05
@@ -206,12 +206,17 @@ def _subset_npz(src: Path, dst: Path, n: int, old, new_of_old) -> bool:
     return True
 
 
+#: Top-level entries of a scan that later stages derive from ``invert/`` (``reroom run``
+#: writes them into the scan): an ablated copy must not take them along.
+DERIVED_OUTPUTS = ("invert", "rerender", "render", "edits", "report", "report.html", "run.json")
+
+
 def subset_scan(
     scan: str | Path,
     keep: np.ndarray,
     out: str | Path,
     *,
-    skip: tuple[str, ...] = ("invert",),
+    skip: tuple[str, ...] = DERIVED_OUTPUTS,
 ) -> dict:
     """Write a copy of ``scan`` that holds only the kept vertices.
 
@@ -234,8 +239,9 @@ def subset_scan(
       ``ground_truth/scene/``, ``hdr/exposures.json``, ...): a symbolic link to the
       original (absolute path), file or whole folder.
 
-    Folders named in ``skip`` (default the old ``invert/`` output) are left out. The
-    source scan is only read.
+    Top-level entries named in ``skip`` (default :data:`DERIVED_OUTPUTS`: the old
+    ``invert/`` and what ``reroom run`` derives from it, whose meshes are not the HDR
+    mesh's even where their vertex count is) are left out. The source scan is only read.
 
     Parameters
     ----------
