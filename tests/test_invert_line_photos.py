@@ -207,3 +207,17 @@ def test_an_axis_seen_on_one_half_moves_parallel_to_itself(photos) -> None:
     assert tube.stripe_samples >= 20
     np.testing.assert_allclose(tube.p1 - tube.p0, P1 - P0, atol=1e-9)
     np.testing.assert_allclose(tube.p0, P0, atol=0.004)
+
+
+def test_an_unreadable_frame_is_neither_bright_nor_dark(photos) -> None:
+    frames, images = photos
+    mesh, _ = _scene()
+    others = caster_without_fixture(mesh.vertices, mesh.faces, P0, P1)
+    everything = observe_tube(frames, lambda f: images[f.index], others, P0, P1, UP)
+    unreadable = {s.frame for s in everything.sightings if not s.bright}
+    tube = observe_tube(
+        frames, lambda f: None if f.index in unreadable else images[f.index], others, P0, P1, UP
+    )
+    assert unreadable and all(s.bright for s in tube.sightings)
+    assert tube.cutoff_deg == (None, None)  # no dark view left to bound it
+    np.testing.assert_allclose(tube.p0, everything.p0)

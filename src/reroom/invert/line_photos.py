@@ -179,7 +179,7 @@ def _stripe_centre(
 
 def observe_tube(
     frames: Sequence[Any],
-    load_image: Callable[[Any], np.ndarray],
+    load_image: Callable[[Any], np.ndarray | None],
     caster: RayCaster,
     p0: ArrayLike,
     p1: ArrayLike,
@@ -198,8 +198,8 @@ def observe_tube(
     frames:
         :class:`reroom.scan.Frame` objects (``project``, ``pixel_rays``, ``center``).
     load_image:
-        ``load_image(frame) -> (H, W, 3)`` 8-bit image (called only for frames that see
-        the tube's place).
+        ``load_image(frame) -> (H, W, 3)`` 8-bit image, or None to skip the frame
+        (called only for frames that see the tube's place).
     caster:
         The scan's geometry *without* the tube's fixture (e.g. the faces farther than
         25 cm from the axis): what may stand between a camera and the tube.
@@ -241,7 +241,10 @@ def observe_tube(
         seen = inside & ~(hits.hit & (hits.t < dist - 0.05))
         if not seen.any():
             continue
-        img8 = np.asarray(load_image(fr))
+        img = load_image(fr)
+        if img is None:  # unreadable: neither bright nor dark
+            continue
+        img8 = np.asarray(img)
         lum = img8.astype(np.float32).mean(axis=2)
         h, wd = lum.shape
         alpha = float(np.degrees(np.arctan2(w @ side, -(w @ u))))
@@ -271,16 +274,14 @@ def observe_tube(
                 if abs(alpha) > stripe_max_alpha:
                     continue
                 o, d = fr.pixel_rays((uv[k] + off * normal)[None, :])
-                o, d = o[0], d[0]
-                along = d @ dh
-                if abs(along) > 0.999:
-                    continue
-                # Where the ray crosses the plane of the cross-section through pts[k].
-                x = o + ((pts[k] - o) @ dh / along) * d if abs(along) > 1e-9 else o
-                rel = x - pts[k]
+                # Projected along the axis, the axis is a point and the ray a line
+                # through it: the ray meets the axis iff its projection passes there.
+                rel = o[0] - pts[k]
                 ys, zs = rel @ side, rel @ u
-                ds, du = d @ side, d @ u
+                ds, du = d[0] @ side, d[0] @ u
                 n = np.hypot(ds, du)
+                if n < 0.05:  # a ray along the axis says nothing about where it lies
+                    continue
                 ds, du = ds / n, du / n
                 # The axis at t[k], (1 - t) (s0, v0) + t (s1, v1), lies on the ray's line.
                 tk = t[k]

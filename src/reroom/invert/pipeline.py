@@ -495,6 +495,7 @@ def _photo_trough(
         return None
     others = caster_without_fixture(mesh.vertices, mesh.faces, p0, p1)
     if others is None:
+        notes.append(f"line light {name!r}: the scan holds nothing but its fixture")
         return None
 
     def load(frame):
@@ -502,7 +503,7 @@ def _photo_trough(
             return frame.load_image()
         except (ReroomError, OSError, ValueError) as exc:
             notes.append(f"line light {name!r}: frame {frame.index} skipped ({exc})")
-            return np.zeros((frame.intrinsics.height, frame.intrinsics.width, 3), np.uint8)
+            return None
 
     tube = observe_tube(frames, load, others, p0, p1, up)
     summary = tube.summary()
