@@ -234,14 +234,6 @@ def _fixture_caster(
     return RayCaster(np.concatenate(verts), np.concatenate(faces), eps=1e-6)
 
 
-def _perpendicular_frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(a, helper)
-    e1 /= np.linalg.norm(e1)
-    return a, e1, np.cross(a, e1)
-
-
 def true_point_intensity(light: dict, scene_dir: Path):
     """The true point light's radiant intensity as a function of direction.
 
@@ -323,23 +315,11 @@ def true_point_profile(
     ndarray, shape (bins, 3)
         Intensity per channel (W/sr, the scene's units).
     """
+    from reroom.invert.point_fixture import inclination_directions
+
     scene_dir = Path(scene_dir)
     pos = np.asarray(light["position"], float)
-    a, e1, e2 = _perpendicular_frame(np.asarray(axis, float))
-    n_c = max(1, int(np.sqrt(samples)))
-    n_p = max(1, samples // n_c)
-    rng = np.random.default_rng(seed)
-    edges = np.cos(InclinationBasis(bins).bin_edges())
-    ic, ip = np.meshgrid(np.arange(n_c), np.arange(n_p), indexing="ij")
-    fc = (ic.ravel() + rng.random((bins, ic.size))) / n_c
-    phi = 2 * np.pi * (ip.ravel() + rng.random((bins, ip.size))) / n_p
-    cos_t = edges[:-1, None] + (edges[1:] - edges[:-1])[:, None] * fc  # uniform in solid angle
-    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t**2))
-    d = (
-        cos_t[..., None] * a
-        + (sin_t * np.cos(phi))[..., None] * e1
-        + (sin_t * np.sin(phi))[..., None] * e2
-    ).reshape(-1, 3)
+    d = inclination_directions(axis, InclinationBasis(bins), samples, seed).reshape(-1, 3)
     value = true_point_intensity(light, scene_dir)(d)
     if fixture_radius > 0:
         caster = _fixture_caster(scene_dir, pos, pos, set(), fixture_radius)

@@ -568,6 +568,14 @@ def light_entries(
             }
             if "shadow_clearance" in info:
                 e["distribution"]["shadow_clearance"] = float(info["shadow_clearance"])
+            if "open_fraction" in info:
+                # The shape prior of a bulb in a shade: the part of each band it leaves open.
+                e["distribution"]["open_fraction"] = [float(x) for x in info["open_fraction"]]
+            if "fixture_inside_fraction" in info:
+                # The prior was dropped: the scan closed the shade around the bulb.
+                e["distribution"]["fixture_inside_fraction"] = float(
+                    info["fixture_inside_fraction"]
+                )
             if support is not None:
                 e["distribution"]["support"] = [float(x) for x in support]
                 e["distribution"]["well_seen"] = [
