@@ -53,7 +53,22 @@ def _stage_outputs(run: Path) -> None:
         {
             "lights": [
                 {"name": "area0", "type": "area", "power": [1.5, 2.5, 3.5]},
-                {"name": "tube", "type": "line", "power": [0.25, 0.25, 0.25]},
+                {
+                    "name": "tube",
+                    "type": "line",
+                    "power": [0.25, 0.25, 0.25],
+                    "distribution": {
+                        "basis": "line",
+                        "open_fraction": [[1.0]],
+                        "fixture_inside_fraction": 0.11,
+                        "fixture_from_photos": {
+                            "axis_offset_m": [0.0193, 0.0408],
+                            "radius_m": 0.0169,
+                            "cutoff_deg": [54.2, None],
+                            "stripe_frames": 22,
+                        },
+                    },
+                },
             ],
             "materials": [
                 {"name": "wall", "albedo": [0.625, 0.5, 0.375], "solved": True},
@@ -131,6 +146,9 @@ def test_report_is_self_contained_and_shows_each_stage(report_run: Path) -> None
     assert "area0" in html and "tube" in html
     assert "1.5, 2.5, 3.5" in html
     assert "kept: &lt;b&gt;bright&lt;/b&gt; panel" in html and "<b>bright" not in html
+    # The tube's fixture from the photos (reroom.invert.line_photos), in words.
+    assert "moved 19 mm across, 41 mm up), radius (16.9 mm) and a trough (cut-off 54 deg)" in html
+    assert "from 22 photos of it" in html
     assert re.search(r"n vertices &lt; n</td><td class=\"num\">2<", html)
     # Materials: the albedo table and its swatch (sRGB of the linear albedo).
     assert "0.625" in html and "0.375" in html
@@ -231,3 +249,15 @@ def test_layout_section_shows_an_estimated_ceiling_and_the_warnings(report_run: 
     html = layout_section(report_run, None)
     assert "not seen" not in html and "Warnings" not in html and "estimated" not in html
     assert '<td class="num">2.3</td>' in html
+
+
+def test_the_lights_table_says_what_shaped_a_profile() -> None:
+    from reroom.report.sections import _prior_note
+
+    shade = {"distribution": {"basis": "inclination", "open_fraction": [1.0, 0.0]}}
+    assert "what its scanned shade leaves open" in _prior_note(shade)
+    tube = {"distribution": {"basis": "line", "open_fraction": [[1.0]]}}
+    assert "what its scanned fixture leaves open" in _prior_note(tube)
+    closed = {"distribution": {"basis": "inclination", "fixture_inside_fraction": 0.72}}
+    assert "closed its fixture: no shape prior" in _prior_note(closed)
+    assert _prior_note({}) == "" and _prior_note({"distribution": {"basis": "cubemap"}}) == ""

@@ -250,6 +250,27 @@ def _reason_kind(reason: str) -> str:
     return re.sub(r"\d+(\.\d+)?", "n", text).strip(" ,;")[:90] or "other"
 
 
+def _prior_note(solved: dict) -> str:
+    """What shaped a solved point or line light's profile (its shape prior), in words."""
+    dist = solved.get("distribution") or {}
+    photo = dist.get("fixture_from_photos")
+    if photo:  # reroom.invert.line_photos
+        off = [1000 * float(x) for x in photo.get("axis_offset_m", [0.0, 0.0])]
+        cut = [c for c in photo.get("cutoff_deg", []) if c is not None]
+        return (
+            f" | invert: the scan closed its fixture, so its axis (moved {off[0]:.0f} mm "
+            f"across, {off[1]:.0f} mm up), radius ({1000 * float(photo.get('radius_m', 0)):.1f}"
+            f" mm) and a trough (cut-off {', '.join(f'{c:.0f}' for c in cut) or '?'} deg) "
+            f"come from {photo.get('stripe_frames', '?')} photos of it"
+        )
+    if "open_fraction" in dist:
+        fixture = "shade" if dist.get("basis") == "inclination" else "fixture"
+        return f" | invert: its profile held to what its scanned {fixture} leaves open"
+    if "fixture_inside_fraction" in dist:
+        return " | invert: the scan closed its fixture: no shape prior"
+    return ""
+
+
 def lights_section(run: Path) -> str:
     """Each light: type, where, how it was decided, its solved power and its diagram."""
     lpath = run / "lights" / "lights.json"
@@ -271,7 +292,7 @@ def lights_section(run: Path) -> str:
                 fmt(_anchor(light)),
                 fmt(s.get("power")) if s else "&ndash;",
                 fmt(s.get("share_of_irradiance")) if s else "&ndash;",
-                esc(light.get("reason", "")),
+                esc(light.get("reason", "") + _prior_note(s)),
             ]
         )
         sun = s.get("sun") if s else None
