@@ -11,15 +11,19 @@ had to be dropped. The photos see both:
   that sees it. Where the fixture leaves it whole (views within ``stripe_max_alpha``
   of straight below, across the tube), the stripe's middle is the projection of the
   axis: each stripe sample back-projects to a ray that passes through the axis, and
-  the axis's offset in its cross-section is the robust least-squares point of those
-  rays (a linear problem, two unknowns). :func:`observe_tube` returns it.
+  the axis's offsets in its cross-section at its two ends are the robust least-squares
+  fit to those rays (a linear problem: four unknowns, or two, one offset for both ends,
+  where the stripes do not cover both halves of the tube). :func:`observe_tube`
+  returns it.
 * **The radius**, from the stripe's width: the tube saturates a pixel as soon as it
   covers a small part of it, so the run of saturated samples along the stripe's
   normal (bilinear between pixel centres) spans about the tube's projected width.
 * **The cut-off.** Seen from further to the side, baffles hide the tube: a frame that
   sees the tube's place (nothing else in the way) shows the stripe or does not. Across
   the tube the angle where the stripe goes out is where the baffle's edge meets the line
-  tangent to the tube's far side (:attr:`PhotoTube.cutoff_deg`, per side).
+  tangent to the tube's far side (:attr:`PhotoTube.cutoff_deg`, per side); a stripe
+  narrower than the tube's width shows how much of it the edge leaves
+  (:func:`trough_edges`).
 
 :func:`trough_fixture` turns that into a fixture the shape prior can cast rays at: a
 trough of two baffles under a ceiling, the baffles' bottom edges at the scanned
