@@ -32,6 +32,7 @@ from reroom.rays.geometry import segment_distance
 
 __all__ = [
     "MAX_INSIDE_FRACTION",
+    "back_face_fraction",
     "cos2_quantiles",
     "inside_fraction",
     "line_open_fraction",
@@ -239,6 +240,19 @@ def inside_fraction(
     ok = norm[:, 0] > 1e-6  # directions along the axis have no facing side
     d, w_perp = d[ok], w_perp[ok] / norm[ok]
     origins = a + (length * rng.random(len(d)))[:, None] * dh + float(radius) * w_perp
-    hits = caster.intersect(origins, d, tmax=reach)
-    back = hits.hit & (np.einsum("ij,ij->i", hits.normals, d) > 0)
-    return float(back.mean()) if len(d) else 0.0
+    return back_face_fraction(caster, origins, d, reach)
+
+
+def back_face_fraction(
+    caster: RayCaster, origins: np.ndarray, directions: np.ndarray, reach: float
+) -> float:
+    """Fraction of the rays whose first hit within ``reach`` is a back face (0 for none).
+
+    What :func:`inside_fraction` and :func:`reroom.invert.point_fixture.point_inside_fraction`
+    count: a light inside closed geometry sees the inside of its surfaces.
+    """
+    if len(directions) == 0:
+        return 0.0
+    hits = caster.intersect(origins, directions, tmax=reach)
+    back = hits.hit & (np.einsum("ij,ij->i", hits.normals, directions) > 0)
+    return float(back.mean())

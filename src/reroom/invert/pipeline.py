@@ -499,13 +499,11 @@ def _point_open_shape(
         return None, {}
     pos = np.asarray(light.geometry["position"], float)
     reach = options.point_clearance
-    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
-    dist = np.linalg.norm(v - pos, axis=1)
-    # The shade's faces, not the bulb's own (all its vertices within 2 cm).
-    keep = (dist <= reach)[f].any(axis=1) & ~(dist < 0.02)[f].all(axis=1)
-    if not keep.any():
+    # The shade's faces within reach, as for a tube (a segment of zero length), less the
+    # bulb's own: all of whose vertices lie within 2 cm (the tube rule with r = 1 cm).
+    caster = scan_fixture_caster(mesh.vertices, mesh.faces, pos, pos, 0.01, reach)
+    if caster is None:
         return None, {}
-    caster = RayCaster(v, f[keep], eps=1e-6)
     inside = point_inside_fraction(caster, pos, reach)
     if inside > MAX_INSIDE_FRACTION:
         notes.append(

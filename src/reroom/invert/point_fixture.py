@@ -24,13 +24,18 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from reroom.invert.basis import InclinationBasis
+from reroom.invert.line_fixture import back_face_fraction
 from reroom.rays import RayCaster
 
 __all__ = ["inclination_directions", "point_inside_fraction", "point_open_fraction"]
 
 
 def _frame(axis: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``axis`` normalised and two unit vectors perpendicular to it and each other."""
+    """``axis`` normalised and two unit vectors perpendicular to it and each other.
+
+    Not :func:`reroom.rays.sampling.orthonormal_basis`: this is the frame the
+    evaluation's true point profile has always used, so its figures stay comparable.
+    """
     a = np.asarray(axis, float).reshape(3)
     norm = float(np.linalg.norm(a))
     if not norm > 0 or not np.isfinite(norm):
@@ -118,6 +123,4 @@ def point_inside_fraction(
     d = rng.normal(size=(rays, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     p = np.broadcast_to(np.asarray(position, float).reshape(3), d.shape)
-    hits = caster.intersect(p, d, tmax=reach)
-    back = hits.hit & (np.einsum("ij,ij->i", hits.normals, d) > 0)
-    return float(back.mean())
+    return back_face_fraction(caster, p, d, reach)

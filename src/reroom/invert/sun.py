@@ -177,6 +177,12 @@ def _through_opening(
     return out
 
 
+def _pane_mask(pane_faces: ArrayLike | None) -> np.ndarray | None:
+    """The window's pane faces as a mask, None when there are none."""
+    pane = None if pane_faces is None else np.asarray(pane_faces, bool)
+    return pane if pane is not None and pane.any() else None
+
+
 def sun_transfer(
     caster: RayCaster,
     window: WindowOpening,
@@ -243,9 +249,7 @@ def sun_transfer(
     s = s / length
     p = np.asarray(points, np.float64).reshape(-1, 3)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
-    pane = None if pane_faces is None else np.asarray(pane_faces, bool)
-    if pane is not None and not pane.any():
-        pane = None
+    pane = _pane_mask(pane_faces)
     eps = caster.eps if offset is None else float(offset)
     if footprint <= 0 or footprint_samples < 2:
         lit = _through_opening(caster, window, s, p, n, eps, tolerance, pane)
@@ -348,9 +352,7 @@ def find_sun(
     rows = np.flatnonzero(ok)
     if len(rows) < 2 * min_lit:
         return None
-    pane = None if pane_faces is None else np.asarray(pane_faces, bool)
-    if pane is not None and not pane.any():
-        pane = None
+    pane = _pane_mask(pane_faces)
     y = np.log(lum[rows])
     rng = np.random.default_rng(seed)
     sub = (
