@@ -150,3 +150,11 @@ def test_delete_chunks_bad_input():
         delete_chunks(mesh, 1.0, rng)
     with pytest.raises(ValueError, match="unprotected"):
         delete_chunks(mesh, 0.5, rng, protect=np.arange(100) > 10)
+
+
+def test_the_ablation_leaves_out_everything_a_run_derives_from_invert():
+    from reroom.invert.incomplete import DERIVED_OUTPUTS
+    from reroom.run import RESERVED, STAGES
+
+    inputs = {*STAGES[: STAGES.index("invert")], "localize"}
+    assert set(DERIVED_OUTPUTS) == set(RESERVED) - inputs
