@@ -130,16 +130,20 @@ def scan_table(scan: str, true_radiance: bool, options: dict | None = None) -> N
         err = ", ".join(f"{x:+.1%}" for x in c.get("relative_error", []))
         print(f"| {name} | {err} | 3 % |")
     print(
-        "\n| light | truth | power error (r, g, b) | target | distribution rel. L2 "
-        "all / seen bins | target |"
+        "\n| light | truth | power error (r, g, b) | leaving its fitting | target "
+        "| distribution rel. L2 all / seen bins | target |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|")
     for light in ev["lights"]:
         err = light.get("power_relative_error")
         text = ", ".join(f"{x:+.1%}" for x in err) if err else light.get("note", "")
+        eff = light.get("effective_power_relative_error")  # a point light's, past its shade
+        eff_text = ", ".join(f"{x:+.1%}" for x in eff) if eff else "-"
         dist = _l2_text(light)
         target = "10 %" if light["type"] in ("point", "line") else ""
-        print(f"| {light['name']} | {light.get('truth')} | {text} | 5 % | {dist} | {target} |")
+        off = light.get("distance_m")  # from the true light's position or centre
+        truth = f"{light.get('truth')}" + (f" ({off:.3f} m off)" if off is not None else "")
+        print(f"| {light['name']} | {truth} | {text} | {eff_text} | 5 % | {dist} | {target} |")
     for light in ev["lights"]:
         sun = (light.get("distribution") or {}).get("sun")
         if sun is None:

@@ -221,3 +221,15 @@ def test_an_unreadable_frame_is_neither_bright_nor_dark(photos) -> None:
     assert unreadable and all(s.bright for s in tube.sightings)
     assert tube.cutoff_deg == (None, None)  # no dark view left to bound it
     np.testing.assert_allclose(tube.p0, everything.p0)
+
+
+def test_a_degenerate_line_is_refused_with_a_clear_error(photos) -> None:
+    frames, images = photos
+    mesh, _ = _scene()
+    others = caster_without_fixture(mesh.vertices, mesh.faces, P0, P1)
+    with pytest.raises(ValueError, match="zero length"):
+        observe_tube(frames, lambda f: images[f.index], others, P0, P0, UP)
+    with pytest.raises(ValueError, match="parallel"):
+        observe_tube(frames, lambda f: images[f.index], others, P0, P1, P1 - P0)
+    with pytest.raises(ValueError, match="zero length"):
+        trough_fixture(P0, P0, UP, (0.07, 0.07), 0.06, 0.1)
