@@ -285,6 +285,37 @@ def test_point_light_refined_towards_the_light_that_lit_the_room(
         assert "position_refinement" not in entry
 
 
+def test_a_light_held_by_the_ceiling_stays_near_it_in_the_refinement(tmp_path: Path) -> None:
+    """``evidence["mounted_on"]`` (localize's mount test) bounds how far the refinement
+    takes a light below the surface holding it, even where the photos' light is lower."""
+    from reroom.lights.lightset import Light, LightSet, write_lights
+
+    truth = np.array([1.4, 1.1, 1.7])
+    scan = _lit_box_scan(tmp_path, truth)
+    nv = len(read_ply(scan / "hdr" / "hdr_mesh.ply").vertices)
+    given = truth + np.array([0.05, 0.0, 0.2])
+    evidence = {"mounted_on": {"surface_z": 2.0, "reason": "test"}}
+    lamp = Light(
+        "lamp", "point", "localize", {"position": given.tolist(), "axis": [0, 0, 1.0]},
+        evidence, "t",
+    )  # fmt: skip
+    write_lights(LightSet([lamp], [], np.full(nv, -1, np.int32)), scan / "lights")
+    found = {}
+    for drop in (0.1, -1.0):
+        opts = InvertOptions(
+            rays_per_receiver=16, receiver_voxel=0.25, pictures=False, refine_mounted_drop=drop
+        )
+        run_invert(scan, tmp_path / f"inv{drop}", opts)
+        doc = json.loads((tmp_path / f"inv{drop}" / "scene.json").read_text())
+        entry = doc["lights"][0]
+        found[drop] = np.asarray(entry["geometry"]["position"])
+        assert ("lowest_z" in entry["position_refinement"]) == (drop >= 0)
+    # Bounded: no lower than 0.1 m under the surface, where it started.
+    assert found[0.1][2] >= 1.9 - 1e-6
+    # Unbounded, the same data take it down towards the light that lit the room.
+    assert found[-1.0][2] < 1.88
+
+
 def _sunny_box_scan(root: Path, sun: np.ndarray | None, e_sun: float = 4.0) -> Path:
     """``_box_scan`` with a window on the wall y = 0 and, if ``sun``, its sunlit patch."""
     from reroom.invert.sun import sun_transfer

@@ -193,6 +193,19 @@ def test_merge_keeps_a_place_measured_from_the_pool_edge(localized):
     np.testing.assert_allclose(lights.lights[0].anchor(), measured, atol=1e-9)
 
 
+def test_merge_records_the_mount(localized):
+    """A light the mount test held by the surface above says so in its evidence."""
+    res, info = localized
+    info = {**info, "goniometric": [
+        {"mount": {"mounted": True, "surface_above_z": 2.5, "reason": "no fitting"}},
+        {"mount": {"mounted": False, "surface_above_z": 2.5}},
+    ]}  # fmt: skip
+    lights = LightSet(lights=[], vertex_light_id=np.full(3, -1, np.int32))
+    merge_localized_lights(lights, res, info)
+    assert lights.lights[0].evidence["mounted_on"] == {"surface_z": 2.5, "reason": "no fitting"}
+    assert "mounted_on" not in lights.lights[1].evidence
+
+
 def _mount_case(
     profile_up: bool = False,
     pendant: bool = False,

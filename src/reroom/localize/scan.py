@@ -1277,10 +1277,16 @@ def _mount_test(
     return res
 
 
-def _localized_light(name: str, p: np.ndarray, it: float, info: dict):
+def _localized_light(name: str, p: np.ndarray, it: float, info: dict, k: int | None = None):
+    """The ``k``-th localized light as a :class:`~reroom.lights.lightset.Light`.
+
+    A light the mount test held by the surface above (``info["goniometric"][k]``) says so
+    in ``evidence["mounted_on"]``: ``reroom invert``'s position refinement keeps it near
+    that surface.
+    """
     from reroom.lights.lightset import Light
 
-    return Light(
+    light = Light(
         name=name,
         type="point",
         source="localize",
@@ -1292,6 +1298,14 @@ def _localized_light(name: str, p: np.ndarray, it: float, info: dict):
         },
         reason=LOCALIZED_REASON,
     )
+    profiles = info.get("goniometric") or []
+    mount = (profiles[k] or {}).get("mount") if k is not None and k < len(profiles) else None
+    if mount and mount.get("mounted") and "surface_above_z" in mount:
+        light.evidence["mounted_on"] = {
+            "surface_z": float(mount["surface_above_z"]),
+            "reason": str(mount.get("reason", "")),
+        }
+    return light
 
 
 #: Evidence of a light placed from its pool's edge that a merge carries over.
@@ -1323,7 +1337,7 @@ def merge_localized_lights(
     used: set[int] = set()
     taken = {x.name for x in lights.lights}
     k = 0
-    for p, it in zip(res.positions, res.intensities, strict=True):
+    for j, (p, it) in enumerate(zip(res.positions, res.intensities, strict=True)):
         best, best_d = None, match_distance
         for i in points:
             d = float(np.linalg.norm(lights.lights[i].anchor() - p))
@@ -1337,7 +1351,7 @@ def merge_localized_lights(
             # gets wrong (docs/localize.md, "Session 8").
             measured = old.evidence.get("height_from") == "pool edge"
             q = np.asarray(old.anchor(), float) if measured else p
-            new = _localized_light(old.name, q, it, info)
+            new = _localized_light(old.name, q, it, info, j)
             new.evidence["replaces"] = {
                 "position": old.geometry.get("position"),
                 "reason": old.reason,
@@ -1364,7 +1378,7 @@ def merge_localized_lights(
                 k += 1
             name = f"localized{k}"
             taken.add(name)
-            lights.lights.append(_localized_light(name, p, it, info))
+            lights.lights.append(_localized_light(name, p, it, info, j))
             done.append(f"{name}: added at {np.round(p, 2).tolist()} ({LOCALIZED_REASON})")
     lights.meta["localize"] = info
     return done
