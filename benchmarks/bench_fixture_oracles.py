@@ -6,6 +6,7 @@ Usage::
     python benchmarks/bench_fixture_oracles.py true-fixture SCAN --work DIR
     python benchmarks/bench_fixture_oracles.py shade-open SCAN [--light point0]
     python benchmarks/bench_fixture_oracles.py shade-frustum SCAN --work DIR --bottom Z,R
+    python benchmarks/bench_fixture_oracles.py shade-forced SCAN --work DIR --light NAME
 
 ``SCAN`` is a synthetic scan with ``hdr/``, ``layout/``, ``lights/`` and
 ``ground_truth/``; the truth is read here (evaluation), never by the pipeline.
@@ -23,6 +24,10 @@ Usage::
 * ``shade-frustum``: ``reroom invert`` with the shaded bulb's prior taken from a
   frustum, its top at the localize evidence's object top and opening radius, its
   bottom at ``Z`` metres with radius ``R`` (e.g. read off a fused shell), evaluated.
+* ``shade-forced``: ``reroom invert`` with the shaded bulb's prior given to the point
+  light ``NAME`` as if the lights stage had placed it in a shade (its evidence's
+  ``height_from`` read as ``"pool edge"``), evaluated: does the prior help a bulb
+  ``reroom localize`` found on its own (session 23, `box_points`'s floor lamp)?
 
 The two ``reroom invert`` variants replace one private step of
 :mod:`reroom.invert.pipeline` for the run (``_photo_trough``, ``_point_open_shape``) and
@@ -32,6 +37,7 @@ write to ``DIR/invert`` through a linked copy of the scan.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -227,17 +233,34 @@ def shade_frustum(scan: Path, work: Path, z_bottom: float, r_bottom: float) -> N
     _report(run, run / "invert")
 
 
+def shade_forced(scan: Path, work: Path, name: str) -> None:
+    original = pipeline._point_open_shape
+
+    def forced(mesh, light, basis, options, notes):
+        if light.name == name:
+            light = dataclasses.replace(
+                light, evidence={**light.evidence, "height_from": "pool edge"}
+            )
+        return original(mesh, light, basis, options, notes)
+
+    pipeline._point_open_shape = forced
+    run = _linked_copy(scan, work)
+    pipeline.run_invert(run, run / "invert")
+    _report(run, run / "invert")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "what", choices=["trough-variants", "true-fixture", "shade-open", "shade-frustum"]
+        "what",
+        choices=["trough-variants", "true-fixture", "shade-open", "shade-frustum", "shade-forced"],
     )
     ap.add_argument("scan", type=Path)
     ap.add_argument("--work", type=Path, help="folder of the linked copy (invert variants)")
     ap.add_argument("--light", default="point0")
     ap.add_argument("--bottom", default="", help="Z,R of the frustum's bottom rim (metres)")
     args = ap.parse_args(argv)
-    if args.what in ("true-fixture", "shade-frustum") and args.work is None:
+    if args.what in ("true-fixture", "shade-frustum", "shade-forced") and args.work is None:
         ap.error(f"{args.what} needs --work DIR")
     if args.what == "trough-variants":
         trough_variants(args.scan)
@@ -245,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         true_fixture(args.scan, args.work)
     elif args.what == "shade-open":
         shade_open(args.scan, args.light)
+    elif args.what == "shade-forced":
+        shade_forced(args.scan, args.work, args.light)
     else:
         try:
             z, r = (float(x) for x in args.bottom.split(","))
