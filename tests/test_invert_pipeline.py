@@ -316,6 +316,30 @@ def test_a_light_held_by_the_ceiling_stays_near_it_in_the_refinement(tmp_path: P
     assert found[-1.0][2] < 1.88
 
 
+def test_a_malformed_mount_record_is_ignored_with_a_note() -> None:
+    from reroom.invert.pipeline import _mounted_surfaces
+    from reroom.lights.lightset import Light
+
+    def lamp(name: str, evidence: dict) -> Light:
+        return Light(
+            name, "point", "user", {"position": [1, 1, 2], "axis": [0, 0, 1]}, evidence, ""
+        )
+
+    notes: list[str] = []
+    got = _mounted_surfaces(
+        [
+            lamp("good", {"mounted_on": {"surface_z": 2.7}}),
+            lamp("nan", {"mounted_on": {"surface_z": float("nan")}}),
+            lamp("text", {"mounted_on": "ceiling"}),
+            lamp("none", {}),
+        ],
+        notes,
+    )
+    assert got == {"good": 2.7}
+    assert len(notes) == 2 and "'nan'" in notes[0] and "'text'" in notes[1]
+    assert all("without the mount's bound" in n for n in notes)
+
+
 def _sunny_box_scan(root: Path, sun: np.ndarray | None, e_sun: float = 4.0) -> Path:
     """``_box_scan`` with a window on the wall y = 0 and, if ``sun``, its sunlit patch."""
     from reroom.invert.sun import sun_transfer

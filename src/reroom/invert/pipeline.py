@@ -1056,11 +1056,7 @@ def run_invert(
     timings["solve"] = time.perf_counter() - t
     if options.refine_points and any(b.kind == "point" for b in blocks):
         t = time.perf_counter()
-        mounted = {
-            x.name: float(x.evidence["mounted_on"]["surface_z"])
-            for x in light_list
-            if x.type == "point" and "surface_z" in (x.evidence.get("mounted_on") or {})
-        }
+        mounted = _mounted_surfaces(light_list, notes)
         moved = _refine_point_lights(
             caster, pts, p_recv, n_recv, rows, blocks, columns, info, problem, result,
             incl, options, mounted,
@@ -1359,6 +1355,32 @@ def _sun_from_its_patch(problem, result, options, notes: list[str], progress=Non
         again.intensities[name] = level[None, :]
         again.light_share[name] = result.light_share.get(name, 0.0)
     return again
+
+
+def _mounted_surfaces(light_list, notes: list[str]) -> dict[str, float]:
+    """Each point light's ``evidence["mounted_on"]["surface_z"]`` (``reroom localize``).
+
+    ``lights.json`` may be edited by hand: a record that is not a finite height is
+    ignored with a note (the light is then refined without the bound).
+    """
+    out = {}
+    for light in light_list:
+        record = light.evidence.get("mounted_on")
+        if light.type != "point" or record is None:
+            continue
+        z = record.get("surface_z") if isinstance(record, dict) else None
+        try:
+            z = float(z)
+        except (TypeError, ValueError):
+            z = float("nan")
+        if np.isfinite(z):
+            out[light.name] = z
+        else:
+            notes.append(
+                f"point light {light.name!r}: evidence mounted_on {record!r} has no finite "
+                "surface_z; refined without the mount's bound"
+            )
+    return out
 
 
 def _refine_point_lights(
