@@ -47,8 +47,9 @@ reads ``ground_truth/``, which the estimate never does.
 ``--at-truth``
     The truth run's problem (true radiance, true lights) evaluated at the truth: the data
     cost at the solution and at the true parameters (true cluster albedos, the window's
-    true cells, every other light's solved shape scaled to its true power), the same
-    problem re-solved with the line lights fixed at their true scale (how flat the
+    true cells, the point and line lights' true profiles, an area light's true power;
+    also with the point and line lights' solved shapes at their true power), the same
+    problem re-solved with the line lights fixed at their truth (how flat the
     light-albedo valley is), and per cluster the model's direct and indirect irradiance at
     the truth against the path tracer's (depth 2 for direct light), with the floor in
     1 m cells. Needs a window or a line light to say much.
@@ -99,8 +100,9 @@ reads ``ground_truth/``, which the estimate never does.
     The truth run (true radiance, true lights) split light by light at its receivers:
     each true light path-traced alone (depth 2) and ``E_ind`` against the path tracer's
     indirect light, binned by ``NAME``'s share of the path tracer's light there. Per bin
-    and light: its share, the model's irradiance at the true intensities over the path
-    tracer's (the light model's own error: basis, transfer), and the solved over the path
+    and light: its share, the model's irradiance at the true intensities (a point or line
+    light's true profile) over the path tracer's (the light model's own error: basis,
+    transfer), and the solved over the path
     tracer's (what the solve made of it). With a window, the cube cells that send those
     receivers most light, true against solved. Which term of the model, in which
     channel, a light's solved colour or power absorbs.
@@ -393,15 +395,21 @@ def _true_cluster_albedo(problem, solution, report: dict) -> np.ndarray:
     return solution.albedo / (1.0 + err)
 
 
-def _true_intensities(scan: Path, report: dict, sol, leaving: bool = False) -> dict:
+def _true_intensities(
+    scan: Path, report: dict, sol, leaving: bool = False, profiles: bool = False
+) -> dict:
     """Each light's true intensities in the solve's basis, by name.
 
     A window's cells from the true HDRI; any other light has its solved shape at its true
     power (the shape error is reported separately): the bulb's power, or with
     ``leaving`` the power leaving its fixture (a lamp's shade keeps part of its bulb's
-    light, which the model never sees).
+    light, which the model never sees). With ``profiles`` a point or line light has its
+    true profile instead (``evaluate_invert``'s ``true_profile`` times the radiance
+    scale ``k``): its shape and power both as the truth's.
     """
     from reroom.invert.evaluate import true_window_cells
+
+    k = np.asarray(report.get("radiance_scale", 1.0), float)
 
     gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
     out: dict[str, np.ndarray] = {}
@@ -411,6 +419,8 @@ def _true_intensities(scan: Path, report: dict, sol, leaving: bool = False) -> d
             win = next(x for x in gt["lights"] if x["name"] == e["truth"])
             n = int(round(np.sqrt(solved.shape[0] / 6)))
             out[e["name"]], _ = true_window_cells(win, scan / "ground_truth" / "scene", n=n)
+        elif profiles and e["type"] in ("point", "line"):
+            out[e["name"]] = np.asarray(e["distribution"]["true_profile"], float) * k
         else:
             err = e.get("effective_power_relative_error") if leaving else None
             err = e["power_relative_error"] if err is None else err
@@ -432,7 +442,8 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
     _, true_albedo, label = _truth(scan)
     f = sp.csr_matrix(prob.transfer)
     off = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])]).astype(int)
-    true_int = _true_intensities(scan, report, sol)
+    shaped = _true_intensities(scan, report, sol)
+    true_int = _true_intensities(scan, report, sol, profiles=True)
     rho_true = _true_cluster_albedo(prob, sol, report)
     w = indirect_weights(prob.radiance, prob.indirect, solve.reweight_c or 10.0)
     scale = float(np.median(prob.radiance))
@@ -451,14 +462,15 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
 
     print(
         f"\ndata cost (Huber, eq. 5.8 weights): solution {cost(sol.albedo, sol.intensities):.4g}, "
-        f"true parameters {cost(rho_true, true_int):.4g}"
+        f"true parameters {cost(rho_true, true_int):.4g} (the point and line lights' "
+        f"solved shapes at their true power: {cost(rho_true, shaped):.4g})"
     )
     lines = [i for i, b in enumerate(prob.lights) if b.kind == "line"]
     if lines:
         fixed = _with_lights_fixed(prob, {i: true_int[prob.lights[i].name] for i in lines})
         again = solve_lighting(fixed, solve)
         print(
-            f"line lights fixed at their true power, the rest re-solved: objective "
+            f"line lights fixed at their truth, the rest re-solved: objective "
             f"{again.objective:.4g} against {sol.objective:.4g} as solved; albedo error "
             + ", ".join(
                 f"{c} {_pct(a)}"
@@ -1440,7 +1452,7 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
     f = scipy.sparse.csr_matrix(prob.transfer)
     off = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])]).astype(int)
     scene_dir = scan / "ground_truth" / "scene"
-    true_int = _true_intensities(scan, report, sol, leaving=True)
+    true_int = _true_intensities(scan, report, sol, leaving=True, profiles=True)
     model = {
         b.name: np.asarray(f[:, off[i] : off[i + 1]] @ true_int[b.name])
         for i, b in enumerate(prob.lights)
