@@ -6,7 +6,8 @@ Usage::
     python benchmarks/bench_fixture_oracles.py true-fixture SCAN --work DIR
     python benchmarks/bench_fixture_oracles.py shade-open SCAN [--light point0]
     python benchmarks/bench_fixture_oracles.py shade-frustum SCAN --work DIR --bottom Z,R
-    python benchmarks/bench_fixture_oracles.py shade-forced SCAN --work DIR --light NAME
+    python benchmarks/bench_fixture_oracles.py shade-forced SCAN --work DIR --light NAME \
+        [--invert '{"window_view_hdri": "/tmp/view.exr"}']
 
 ``SCAN`` is a synthetic scan with ``hdr/``, ``layout/``, ``lights/`` and
 ``ground_truth/``; the truth is read here (evaluation), never by the pipeline.
@@ -28,6 +29,8 @@ Usage::
   light ``NAME`` as if the lights stage had placed it in a shade (its evidence's
   ``height_from`` read as ``"pool edge"``), evaluated: does the prior help a bulb
   ``reroom localize`` found on its own (session 23, `box_points`'s floor lamp)?
+  ``--invert JSON`` sets other ``InvertOptions`` for that run (e.g. a captured window
+  view, to see the prior without the window's cell error).
 
 The two ``reroom invert`` variants replace one private step of
 :mod:`reroom.invert.pipeline` for the run (``_photo_trough``, ``_point_open_shape``) and
@@ -233,7 +236,7 @@ def shade_frustum(scan: Path, work: Path, z_bottom: float, r_bottom: float) -> N
     _report(run, run / "invert")
 
 
-def shade_forced(scan: Path, work: Path, name: str) -> None:
+def shade_forced(scan: Path, work: Path, name: str, options: dict | None = None) -> None:
     original = pipeline._point_open_shape
 
     def forced(mesh, light, basis, options, notes):
@@ -245,7 +248,7 @@ def shade_forced(scan: Path, work: Path, name: str) -> None:
 
     pipeline._point_open_shape = forced
     run = _linked_copy(scan, work)
-    pipeline.run_invert(run, run / "invert")
+    pipeline.run_invert(run, run / "invert", pipeline.InvertOptions(**(options or {})))
     _report(run, run / "invert")
 
 
@@ -259,6 +262,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", type=Path, help="folder of the linked copy (invert variants)")
     ap.add_argument("--light", default="point0")
     ap.add_argument("--bottom", default="", help="Z,R of the frustum's bottom rim (metres)")
+    ap.add_argument(
+        "--invert",
+        default="{}",
+        help="shade-forced: InvertOptions overrides as JSON, e.g. "
+        '{"window_view_hdri": "/tmp/view.exr"}',
+    )
     args = ap.parse_args(argv)
     if args.what in ("true-fixture", "shade-frustum", "shade-forced") and args.work is None:
         ap.error(f"{args.what} needs --work DIR")
@@ -269,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.what == "shade-open":
         shade_open(args.scan, args.light)
     elif args.what == "shade-forced":
-        shade_forced(args.scan, args.work, args.light)
+        shade_forced(args.scan, args.work, args.light, json.loads(args.invert))
     else:
         try:
             z, r = (float(x) for x in args.bottom.split(","))

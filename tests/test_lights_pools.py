@@ -64,3 +64,67 @@ def test_a_pool_right_behind_an_emitter_is_not_a_pool() -> None:
     assert hugs_an_emitter(behind, emitters)
     assert not hugs_an_emitter(away, emitters)
     assert not hugs_an_emitter(behind, None)
+
+
+def _soft_lamp(bulb_z: float = 1.5, blur: float = 0.12, seed: int = 1):
+    """``_lamp`` in a 5 x 4 m room's corner, its pool's edge blurred over ``blur`` metres
+    (the shade's rim and the photos' pixels soften it), on a 6 cm ceiling grid, about
+    2.5x the ceiling's level inside: `box_points`' floor lamp (session 25)."""
+    rng = np.random.default_rng(seed)
+    g = np.arange(0.03, 5.0, 0.06), np.arange(0.03, 4.0, 0.06)
+    xx, yy = np.meshgrid(*g)
+    xy = np.column_stack([xx.ravel(), yy.ravel()])
+    ceiling = np.column_stack([xy, np.full(len(xy), CEILING_Z)])
+    axis, r_open, top = np.array([4.45, 3.45]), 0.137, 1.64
+    r = np.linalg.norm(xy - axis, axis=1)
+    h = CEILING_Z - bulb_z
+    edge = r_open * h / (top - bulb_z)
+    inside = np.clip(0.5 - (r - edge) / blur, 0.0, 1.0)  # a linear ramp across the edge
+    lum = 0.13 * (1.0 + 1.6 * inside * (h / np.sqrt(h * h + r * r)) ** 3 / 0.9)
+    lum *= rng.normal(1.0, 0.02, len(lum))
+    t = rng.uniform(0.0, 2.0 * np.pi, 400)
+    z = rng.uniform(top - 0.28, top, 400)
+    rad = r_open + 0.08 * (top - z) / 0.28
+    body = np.column_stack([axis[0] + rad * np.cos(t), axis[1] + rad * np.sin(t), z])
+    return ceiling, lum, body, top, edge
+
+
+def test_a_soft_pool_edge_in_a_corner_is_found():
+    ceiling, lum, body, top, edge = _soft_lamp()
+    out = bulb_from_pool_edge(ceiling, lum, body, top, CEILING_Z)
+    assert out is not None
+    assert abs(out["pool_edge_radius_m"] - edge) < 0.08, (out, edge)
+    assert abs(out["position"][2] - 1.5) < 0.03, out
+
+
+def test_a_lamp_pool_two_and_a_half_times_the_ceiling_is_a_pool():
+    """A lamp's pool about 2.5x the ceiling's median luminance is found with the default
+    ``pool_factor`` (`box_points`' floor lamp; the ceiling is lit by a panel and a window
+    too), and a ceiling lit evenly is not."""
+    import scipy.sparse as sp
+
+    from reroom.lights.detect import LightsOptions
+    from reroom.lights.pools import _lit_pools
+
+    ceiling, lum, _, _, edge = _soft_lamp()
+    nx, ny = 83, 67  # the 6 cm grid of _soft_lamp
+    assert len(ceiling) == nx * ny
+    ids = np.arange(nx * ny).reshape(ny, nx)
+    pairs = np.concatenate(
+        [np.column_stack([ids[:, :-1].ravel(), ids[:, 1:].ravel()]),
+         np.column_stack([ids[:-1].ravel(), ids[1:].ravel()])]
+    )  # fmt: skip
+    adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (nx * ny,) * 2)
+    adj = (adj + adj.T).tocsr()
+    usable = np.ones(len(lum), bool)
+    labels = np.full(len(lum), 2)
+    factor = LightsOptions().pool_factor
+    assert np.median(lum[np.linalg.norm(ceiling[:, :2] - [4.45, 3.45], axis=1) < 0.4]) < (
+        3.0 * np.median(lum)
+    )  # below the old factor of 3
+    pools = _lit_pools(lum, usable, labels, 2, adj, factor)
+    assert len(pools) >= 1
+    r = np.linalg.norm(ceiling[pools[0], :2] - [4.45, 3.45], axis=1)
+    assert r.max() < edge + 0.1 and len(pools[0]) > 50
+    flat = 0.13 * np.random.default_rng(2).normal(1.0, 0.05, len(lum))
+    assert _lit_pools(flat, usable, labels, 2, adj, factor) == []

@@ -135,7 +135,10 @@ class LightsOptions:
         Look for lit pools on the ceiling and floor; propose point lights inside the
         top of objects under ceiling pools.
     pool_factor:
-        A pool is brighter than this multiple of its surface's median luminance.
+        A pool is brighter than this multiple of its surface's median luminance. 2: a
+        lamp's pool on a ceiling that other lights reach as well is 2.5x its median
+        (`box_points`), which 3 missed; a pool only becomes a light with an object
+        under it and a measured edge or a note saying its place is a guess.
     pool_min_area:
         Smallest pool considered, m².
     """
@@ -157,7 +160,7 @@ class LightsOptions:
     view_consistency: bool = True
     propose_points: bool = True
     require_layout: bool = True
-    pool_factor: float = 3.0
+    pool_factor: float = 2.0
     pool_min_area: float = 0.05
 
 
