@@ -128,3 +128,25 @@ def test_a_lamp_pool_two_and_a_half_times_the_ceiling_is_a_pool():
     assert r.max() < edge + 0.1 and len(pools[0]) > 50
     flat = 0.13 * np.random.default_rng(2).normal(1.0, 0.05, len(lum))
     assert _lit_pools(flat, usable, labels, 2, adj, factor) == []
+
+
+def test_the_opening_is_the_rims_inner_ring_unless_a_lid_closes_it():
+    """A clean scan's rim has the shade's outer face and its lining: the light leaves by
+    the inner ring, and the bulb is placed from it; a fused scan's lid (points of every
+    radius at the top) keeps the fitted circle instead of a radius inside the lid."""
+    rng = np.random.default_rng(3)
+    bulb_z, top, inner, outer = 1.5, 1.64, 0.134, 0.140
+    ceiling, lum, _, _, _ = _lamp(bulb_z, r_open=inner, top=top)
+    t = rng.uniform(0.0, 2.0 * np.pi, 400)
+    ring = np.where(np.arange(400) % 2 == 0, inner, outer)
+    rim = np.column_stack([0.55 + ring * np.cos(t), 0.55 + ring * np.sin(t), np.full(400, top)])
+    below = _lamp(bulb_z, r_open=outer, top=top)[2]
+    body = np.concatenate([rim, below[below[:, 2] < top - 0.05]])
+    out = bulb_from_pool_edge(ceiling, lum, body, top, CEILING_Z)
+    assert out is not None
+    assert abs(out["opening_radius_m"] - inner) < 0.002, out
+    assert abs(out["position"][2] - bulb_z) < 0.012, out
+    rr = 0.137 * np.sqrt(rng.uniform(0.0, 1.0, 400))
+    lid = np.column_stack([0.55 + rr * np.cos(t), 0.55 + rr * np.sin(t), np.full(400, top)])
+    out = bulb_from_pool_edge(ceiling, lum, np.concatenate([body, lid]), top, CEILING_Z)
+    assert out is None or out["opening_radius_m"] > 0.08, out

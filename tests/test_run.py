@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -154,6 +155,50 @@ def test_bad_options_fail_before_any_work(first_run, tmp_path: Path) -> None:
     (other / "transforms.json").write_text("{}")
     with pytest.raises(ReroomError, match="not a link"):
         prepare_run_dir(scan, other)
+
+
+def test_a_window_view_is_an_input_of_the_inverse_rendering(first_run, tmp_path: Path) -> None:
+    """``reroom run --window-view``: the invert stage and those after it run again with the
+    view (the file is an input: its content counts), which reaches the invert stage's
+    options, and a view that cannot be read fails before any work, naming the file."""
+    from reroom.io.images import write_exr
+
+    scan, out, edits, _ = first_run
+    run = tmp_path / "copy"
+    shutil.copytree(out, run, symlinks=True)
+    h = 16
+    sky = np.ones((h, 2 * h, 3), np.float32)
+    sky[: h // 2] *= 4.0  # brighter above the horizon
+    view = write_exr(tmp_path / "view.exr", sky)
+
+    def opts(path: Path | None) -> RunOptions:
+        o = _opts(run, edits)
+        o.window_view = path
+        return o
+
+    st = _status(run_scan(scan, opts(view)))
+    assert [st[s] for s in STAGES[:3]] == ["skipped"] * 3
+    assert [st[s] for s in STAGES[3:]] == ["ran"] * 4
+    assert read_record(run / "invert")["options"]["window_view_hdri"] == "view.exr"
+    # (This 12-frame 80x60 scan finds no window; what the view does to a window's cells
+    # and map is tested in test_invert_window_env.py.)
+    # The same view again: nothing to do; other content in that file: the invert stage.
+    assert set(_status(run_scan(scan, opts(view))).values()) == {"skipped"}
+    write_exr(view, sky[::-1].copy())
+    st = _status(run_scan(scan, opts(view)))
+    assert st["lights"] == "skipped" and st["invert"] == "ran"
+    # Bad views are refused before any stage runs.
+    with pytest.raises(ReroomError, match="nothing.exr"):
+        run_scan(scan, opts(tmp_path / "nothing.exr"))
+    junk = tmp_path / "junk.exr"
+    junk.write_bytes(b"not an exr")
+    with pytest.raises(ReroomError, match="junk.exr"):
+        run_scan(scan, opts(junk))
+    write_exr(junk, np.zeros_like(sky))
+    with pytest.raises(ReroomError, match="black"):
+        run_scan(scan, opts(junk))
+    r = CliRunner().invoke(app, ["run", str(scan), "--out", str(run), "--window-view", str(junk)])
+    assert r.exit_code != 0 and "junk.exr" in r.output and "Traceback" not in r.output
 
 
 def test_run_folder_links_the_scan_and_may_live_inside_it(tmp_path: Path) -> None:

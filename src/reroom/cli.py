@@ -679,6 +679,17 @@ def run_command(
             "to the inverse rendering (adds 20-80 s; see docs/localize.md)."
         ),
     ] = True,
+    window_view: Annotated[
+        Path | None,
+        typer.Option(
+            help="An HDRI of the view outside the windows, taken at a window (EXR, "
+            "equirectangular in the scan's frame, any scale): how the sky's light is "
+            "spread within each cube cell, which the frames clip (docs/invert.md)."
+        ),
+    ] = None,
+    window_view_rotation: Annotated[
+        float, typer.Option(help="That HDRI's turn about the up axis, degrees.")
+    ] = 0.0,
 ) -> None:
     """Every stage end to end (HDR, layout, lights, invert, renders, edits) and report.html.
 
@@ -695,6 +706,8 @@ def run_command(
         default_edits=default_edits,
         evaluate=evaluate,
         localize=localize,
+        window_view=window_view,
+        window_view_rotation_deg=window_view_rotation,
     )
     t = time.perf_counter()
     with _errors(), _progress() as cb:

@@ -98,6 +98,17 @@ class RunOptions:
         inverse rendering pushes their light into the albedos (the 24-frame demo scan:
         wall +24-28 % and floor +51-79 % without, +3-4 % and +3-10 % with;
         docs/run.md). ``--no-localize`` skips it.
+    window_view:
+        An HDRI of the view outside the windows, taken at a window (EXR,
+        equirectangular in the scan's frame, any overall scale): the inverse rendering
+        weights each window cube cell's transfer by its pattern within the cell, and the
+        renders spread each solved cell as it does (``InvertOptions.window_view_hdri``,
+        docs/invert.md "A captured view of the window"). The frames clip what they see
+        through a window and cannot give that pattern; on `furnished` and `box_points`
+        the view brings every albedo within 2.2 % and 1.8 % (docs/benchmarks.md,
+        sessions 19 and 25). Its content is an input of the invert stage.
+    window_view_rotation_deg:
+        That HDRI's turn about the up axis, degrees.
     """
 
     out_dir: Path | None = None
@@ -111,6 +122,8 @@ class RunOptions:
     invert_voxel: float = 0.1
     evaluate: bool = True
     localize: bool = True
+    window_view: Path | None = None
+    window_view_rotation_deg: float = 0.0
 
 
 @dataclass
@@ -303,8 +316,12 @@ def build_stages(
     hdr_opt = HdrOptions(baselines=options.hdr_baselines, report=True)
     layout_opt = LayoutOptions(radiance=hdr_dir / HDR_FILES["mesh"])
     lights_opt = LightsOptions()
+    view = None if options.window_view is None else Path(options.window_view).resolve()
     invert_opt = InvertOptions(
-        rays_per_receiver=options.invert_rays, receiver_voxel=options.invert_voxel
+        rays_per_receiver=options.invert_rays,
+        receiver_voxel=options.invert_voxel,
+        window_view_hdri=None if view is None else str(view),
+        window_view_rotation_deg=options.window_view_rotation_deg,
     )
     hdr_out = [hdr_dir / HDR_FILES[k] for k in ("mesh", "exposures", "extras")]
     layout_out = [layout_dir / LAYOUT_FILES[k] for k in ("layout", "labels")]
@@ -473,8 +490,10 @@ def build_stages(
         Stage(
             "invert",
             invert_dir,
-            [hdr_dir / HDR_FILES["mesh"], *layout_out, *lights_out],
-            _options(invert_opt),
+            # A captured window view is an input file (its content counts, as the edit
+            # file's); in the options only its name, as the HDR mesh's path above.
+            [hdr_dir / HDR_FILES["mesh"], *layout_out, *lights_out, *([view] if view else [])],
+            {**_options(invert_opt), "window_view_hdri": view.name if view else None},
             invert_out,
             run_inv,
         ),
@@ -537,8 +556,9 @@ def run_scan(
     Raises
     ------
     ReroomError
-        For bad options (an unknown stage in ``force``, a bad edit file), a scan that is
-        not one, or a run folder that holds another scan.
+        For bad options (an unknown stage in ``force``, a bad edit file, a window view
+        that cannot be read), a scan that is not one, or a run folder that holds another
+        scan.
     """
     opt = options or RunOptions()
     cb = progress or (lambda s, d, t: None)
@@ -549,6 +569,8 @@ def run_scan(
         )
     if opt.edits_file is not None:
         load_edit_file(opt.edits_file)  # bad edit files fail before any work
+    if opt.window_view is not None:
+        _check_window_view(Path(opt.window_view))
     t0 = time.perf_counter()
     run = prepare_run_dir(scan_dir, opt.out_dir)
     results: list[StageResult] = []
@@ -576,6 +598,22 @@ def run_scan(
             notes.append(f"the report could not be written either: {exc}")
             report = None
     return RunResult(run, results, report, failed, seconds, notes)
+
+
+def _check_window_view(path: Path) -> None:
+    """A window view that cannot be read fails before any work, naming the file."""
+    import numpy as np
+
+    if not path.is_file():
+        raise ReroomError(f"--window-view: {path}: no such file")
+    from reroom.render.emitters import load_hdri
+
+    try:
+        image = load_hdri(path)
+    except Exception as exc:  # whatever the EXR reader raises for a corrupt file
+        raise ReroomError(f"--window-view: {path}: cannot be read as an HDRI ({exc})") from exc
+    if image.ndim != 3 or not np.isfinite(image).all() or not (image.max() > 0):
+        raise ReroomError(f"--window-view: {path}: black, not finite or not an RGB image")
 
 
 def _write_run_json(run: Path, results: list[StageResult], seconds: float) -> None:

@@ -297,12 +297,16 @@ def bulb_from_pool_edge(
         or np.linalg.norm(axis - body[:, :2].mean(0)) > 0.3
     ):
         return None
-    # The light leaves through the opening's innermost edge: a scanned shade's rim has
-    # its outer face and its lining (0.140 and 0.134 m on the synthetic lamps), and the
-    # circle through both is 3 mm too wide, which puts the bulb 6 mm low (session 25).
-    # Points well inside the circle (a lid a depth-fused scan closed) are not rim.
+    # The light leaves through the opening's innermost edge: a clean scan's rim has the
+    # shade's outer face and its lining (0.140 and 0.134 m on the synthetic lamps), and
+    # the circle through both is 3 mm too wide, which puts the bulb 6 mm low (session
+    # 25). A rim that thin gives its inner ring; a thick one (a depth-fused scan closes
+    # the opening with a lid of every radius) keeps the circle, which placed the bulb
+    # within 1 cm there.
     d_rim = np.linalg.norm(rim[:, :2] - axis, axis=1)
-    r_open = float(np.percentile(d_rim[d_rim > 0.7 * r_open], 10))
+    p10, p90 = np.percentile(d_rim, [10, 90])
+    if p90 - p10 < 0.02:
+        r_open = float(p10)
     d = ceiling[:, :2] - axis
     r = np.linalg.norm(d, axis=1)
     az = np.arctan2(d[:, 1], d[:, 0])
