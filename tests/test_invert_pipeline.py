@@ -316,6 +316,35 @@ def test_a_light_held_by_the_ceiling_stays_near_it_in_the_refinement(tmp_path: P
     assert found[-1.0][2] < 1.88
 
 
+def test_a_light_placed_from_its_pool_edge_is_not_refined(tmp_path: Path) -> None:
+    """A bulb ``reroom lights`` placed from its ceiling pool's edge (millimetres, from the
+    rim and similar triangles) keeps that place; the same light from localization is
+    refined towards the photos' light."""
+    from reroom.lights.lightset import Light, LightSet, write_lights
+
+    truth = np.array([1.4, 1.1, 1.7])
+    scan = _lit_box_scan(tmp_path, truth)
+    nv = len(read_ply(scan / "hdr" / "hdr_mesh.ply").vertices)
+    given = truth + np.array([0.05, 0.0, 0.2])
+    found = {}
+    for how in ("pool edge", None):
+        evidence = {"height_from": how} if how else {}
+        lamp = Light(
+            "lamp", "point", "localize", {"position": given.tolist(), "axis": [0, 0, 1.0]},
+            evidence, "t",
+        )  # fmt: skip
+        write_lights(LightSet([lamp], [], np.full(nv, -1, np.int32)), scan / "lights")
+        opts = InvertOptions(rays_per_receiver=16, receiver_voxel=0.25, pictures=False)
+        run_invert(scan, tmp_path / f"inv{how}", opts)
+        entry = json.loads((tmp_path / f"inv{how}" / "scene.json").read_text())["lights"][0]
+        found[how] = (np.asarray(entry["geometry"]["position"]), entry["position_refinement"])
+    pos, ref = found["pool edge"]
+    np.testing.assert_allclose(pos, given)
+    assert "pool" in ref["skipped"] and not ref["kept"]
+    pos, ref = found[None]
+    assert np.linalg.norm(pos - given) > 0.05 and ref["kept"]
+
+
 def test_a_malformed_mount_record_is_ignored_with_a_note() -> None:
     from reroom.invert.pipeline import _mounted_surfaces
     from reroom.lights.lightset import Light

@@ -221,7 +221,8 @@ class InvertOptions:
         After the first solve, move each point light to where its share of the solved
         lighting fits the photos best (:mod:`reroom.invert.refine_points`), then solve
         again; the new positions are kept only if the objective went down by
-        ``refine_min_gain``.
+        ``refine_min_gain``. A bulb placed from its ceiling pool's edge
+        (``evidence["height_from"] == "pool edge"``) keeps its measured place.
     refine_max_shift : float
         Metres a point light may move in that refinement.
     refine_max_receivers : int
@@ -1057,9 +1058,10 @@ def run_invert(
     if options.refine_points and any(b.kind == "point" for b in blocks):
         t = time.perf_counter()
         mounted = _mounted_surfaces(light_list, notes)
+        measured = {x.name for x in light_list if x.evidence.get("height_from") == "pool edge"}
         moved = _refine_point_lights(
             caster, pts, p_recv, n_recv, rows, blocks, columns, info, problem, result,
-            incl, options, mounted,
+            incl, options, mounted, measured,
         )  # fmt: skip
         if moved:
             transfer = sp.csr_matrix(np.concatenate(columns, axis=1))
@@ -1397,13 +1399,16 @@ def _refine_point_lights(
     incl,
     options,
     mounted=None,
+    measured=frozenset(),
 ) -> list[tuple[int, float, np.ndarray, dict]]:
     """Move each point light to where its share of the first solve fits best.
 
     (:mod:`reroom.invert.refine_points`). Updates ``columns`` and ``info`` in place for the
     lights that moved; returns ``(block index, metres, old column, old geometry)`` of each.
     ``mounted`` maps a light held by the surface above it to that surface's height: it
-    goes at most ``options.refine_mounted_drop`` below it.
+    goes at most ``options.refine_mounted_drop`` below it. Lights named in ``measured``
+    (placed from their ceiling pool's edge: the rim's centre and the similar triangles,
+    to millimetres) stay where they are.
     """
     from reroom.invert.refine_points import refine_point_position
 
@@ -1443,6 +1448,9 @@ def _refine_point_lights(
     moved = []
     for k, block in enumerate(blocks):
         if block.kind != "point":
+            continue
+        if block.name in measured:
+            info[k]["refinement"] = {"skipped": "placed from its ceiling pool's edge"}
             continue
         cols = slice(int(starts[k]), int(starts[k + 1]))
         own = problem.transfer[:, cols] @ intens[cols]
