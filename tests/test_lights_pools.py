@@ -150,3 +150,14 @@ def test_the_opening_is_the_rims_inner_ring_unless_a_lid_closes_it():
     lid = np.column_stack([0.55 + rr * np.cos(t), 0.55 + rr * np.sin(t), np.full(400, top)])
     out = bulb_from_pool_edge(ceiling, lum, np.concatenate([body, lid]), top, CEILING_Z)
     assert out is None or out["opening_radius_m"] > 0.08, out
+
+
+def test_other_furniture_under_the_pool_does_not_hide_the_lamp():
+    """``body`` is every object under the pool: a sofa beside the lamp (lower than the
+    shade's top) must not move the rim's check off the lamp."""
+    ceiling, lum, body, top, _ = _lamp(1.5)
+    rng = np.random.default_rng(4)
+    sofa = rng.uniform([0.2, 0.9, 0.4], [1.2, 1.8, 0.8], (3000, 3))
+    out = bulb_from_pool_edge(ceiling, lum, np.concatenate([body, sofa]), top, CEILING_Z)
+    assert out is not None
+    assert abs(out["position"][2] - 1.5) < 0.02, out
