@@ -9,6 +9,14 @@ from reroom.lights.pools import bulb_from_pool_edge
 CEILING_Z = 2.7
 
 
+def _shade(rng, axis, r_open: float, top: float) -> np.ndarray:
+    """400 points of a sloped shade 0.28 m tall, open at ``top`` with radius ``r_open``."""
+    t = rng.uniform(0.0, 2.0 * np.pi, 400)
+    z = rng.uniform(top - 0.28, top, 400)
+    rad = r_open + 0.08 * (top - z) / 0.28
+    return np.column_stack([axis[0] + rad * np.cos(t), axis[1] + rad * np.sin(t), z])
+
+
 def _lamp(bulb_z: float, axis=(0.55, 0.55), r_open: float = 0.14, top: float = 1.64, seed=0):
     """A ceiling seen in a corner room (walls at x = 0 and y = 0, 6 x 4.5 m), lit by a
     bulb on the axis of a shade whose top opening has radius ``r_open`` at ``top``."""
@@ -21,11 +29,7 @@ def _lamp(bulb_z: float, axis=(0.55, 0.55), r_open: float = 0.14, top: float = 1
     cos = h / np.sqrt(h * h + r * r)
     lum = 0.2 + np.where(r < edge, 4.0 * cos**3 / h**2, 0.0)  # direct inside, dim beyond
     lum *= rng.normal(1.0, 0.03, len(lum))  # photo noise
-    t = rng.uniform(0.0, 2.0 * np.pi, 400)
-    z = rng.uniform(top - 0.28, top, 400)
-    rad = r_open + 0.08 * (top - z) / 0.28
-    body = np.column_stack([axis[0] + rad * np.cos(t), axis[1] + rad * np.sin(t), z])
-    return ceiling, lum, body, top, edge
+    return ceiling, lum, _shade(rng, axis, r_open, top), top, edge
 
 
 def test_bulb_height_from_the_pool_edge():
@@ -82,11 +86,7 @@ def _soft_lamp(bulb_z: float = 1.5, blur: float = 0.12, seed: int = 1):
     inside = np.clip(0.5 - (r - edge) / blur, 0.0, 1.0)  # a linear ramp across the edge
     lum = 0.13 * (1.0 + 1.6 * inside * (h / np.sqrt(h * h + r * r)) ** 3 / 0.9)
     lum *= rng.normal(1.0, 0.02, len(lum))
-    t = rng.uniform(0.0, 2.0 * np.pi, 400)
-    z = rng.uniform(top - 0.28, top, 400)
-    rad = r_open + 0.08 * (top - z) / 0.28
-    body = np.column_stack([axis[0] + rad * np.cos(t), axis[1] + rad * np.sin(t), z])
-    return ceiling, lum, body, top, edge
+    return ceiling, lum, _shade(rng, axis, r_open, top), top, edge
 
 
 def test_a_soft_pool_edge_in_a_corner_is_found():
