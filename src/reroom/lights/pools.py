@@ -230,7 +230,8 @@ def _point_from_pool(
 
 def _half_way(prof: np.ndarray, centres: np.ndarray) -> float:
     """Where ``prof`` (falling from its first to its last value) crosses their mean,
-    linearly between the window centres ``centres``; the middle one if it is NaN."""
+    linearly between the window centres ``centres``; the middle centre if no pair of
+    neighbouring values brackets it (NaN gaps)."""
     mid = 0.5 * (prof[0] + prof[-1])
     for j in range(len(prof) - 1):
         a, b = prof[j], prof[j + 1]
@@ -276,9 +277,10 @@ def bulb_from_pool_edge(
         The edge is searched along ``sectors`` directions round the axis, in radial
         bins of ``step`` (medians over ``2 step``; default 0.04 m or 0.8 x the ceiling
         vertices' spacing, whichever is larger), as the steepest fall between adjacent
-        disjoint windows of at least ``min_drop`` of the level before it; directions where walls cut the pool short
-        or the fall is not sharp give none, and ``min_sectors`` must agree (within 10 %
-        of their median).
+        disjoint windows of at least ``min_drop`` of the level before it, placed where
+        the profile crosses half-way down; directions where walls cut the pool short or
+        the fall is not sharp give none, and ``min_sectors`` must agree (within 10 % of
+        their median).
 
     Returns
     -------
