@@ -601,19 +601,14 @@ def run_scan(
 
 
 def _check_window_view(path: Path) -> None:
-    """A window view that cannot be read fails before any work, naming the file."""
-    import numpy as np
-
-    if not path.is_file():
-        raise ReroomError(f"--window-view: {path}: no such file")
-    from reroom.render.emitters import load_hdri
+    """A window view that cannot be read fails before any work, naming the file (the
+    inverse rendering's own check, :func:`reroom.invert.window_env.read_view_hdri`)."""
+    from reroom.invert.window_env import read_view_hdri
 
     try:
-        image = load_hdri(path)
-    except Exception as exc:  # whatever the EXR reader raises for a corrupt file
-        raise ReroomError(f"--window-view: {path}: cannot be read as an HDRI ({exc})") from exc
-    if image.ndim != 3 or not np.isfinite(image).all() or not (image.max() > 0):
-        raise ReroomError(f"--window-view: {path}: black, not finite or not an RGB image")
+        read_view_hdri(path)
+    except ScanError as exc:
+        raise ReroomError(f"--window-view: {exc}") from exc
 
 
 def _write_run_json(run: Path, results: list[StageResult], seconds: float) -> None:

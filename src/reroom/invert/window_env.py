@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from reroom.errors import ReroomError
+from reroom.errors import ReroomError, ScanError
 from reroom.invert.basis import CubemapBasis
 from reroom.invert.photos import frame_scale, read_frame_scales, scan_response
 from reroom.invert.windows import WindowOpening, rays_through_windows
@@ -67,6 +67,7 @@ __all__ = [
     "map_cell_means",
     "observe_windows",
     "photo_environments",
+    "read_view_hdri",
     "refine_cells",
 ]
 
@@ -569,6 +570,27 @@ def _read_view(path: str, mtime_ns: int) -> np.ndarray:
     return load_hdri(path)
 
 
+def read_view_hdri(path: str | Path) -> np.ndarray:
+    """A captured window view's ``(H, W, 3)`` pixels, checked.
+
+    Raises
+    ------
+    ScanError
+        Naming the file when it is missing or unreadable, or when it is black or not
+        finite (no pattern to take from it).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ScanError(p, "the window's view HDRI is missing")
+    try:
+        image = _read_view(str(p), p.stat().st_mtime_ns)
+    except (ReroomError, OSError, ValueError, RuntimeError) as exc:
+        raise ScanError(p, f"cannot read the window's view HDRI ({exc})") from exc
+    if not np.isfinite(image).all() or not (image.max() > 0):
+        raise ScanError(p, "the window's view HDRI is black or not finite")
+    return image
+
+
 def map_cell_means(
     image: np.ndarray, basis: CubemapBasis, directions: np.ndarray, rotation_deg: float = 0.0
 ) -> np.ndarray:
@@ -633,11 +655,9 @@ class WindowView:
         rotation_deg: float = 0.0,
         seed: int = 0,
     ) -> WindowView:
-        """:meth:`from_image` of an EXR file (read once per file and modification time)."""
-        p = Path(path)
-        return cls.from_image(
-            _read_view(str(p), p.stat().st_mtime_ns), basis, inward_normal, rotation_deg, seed=seed
-        )
+        """:meth:`from_image` of an EXR file (read once per file and modification time;
+        :func:`read_view_hdri` checks it)."""
+        return cls.from_image(read_view_hdri(path), basis, inward_normal, rotation_deg, seed=seed)
 
     def _ratio(self, directions: np.ndarray, basis: CubemapBasis) -> np.ndarray:
         from reroom.render.emitters import latlong_lookup as lookup
