@@ -105,7 +105,7 @@ class RunOptions:
         renders spread each solved cell as it does (``InvertOptions.window_view_hdri``,
         docs/invert.md "A captured view of the window"). The frames clip what they see
         through a window and cannot give that pattern; on `furnished` and `box_points`
-        the view brings every albedo within 2.2 % and 1.8 % (docs/benchmarks.md,
+        the view brings every albedo within 2.2 % and 1.9 % (docs/benchmarks.md,
         sessions 19 and 25). Its content is an input of the invert stage.
     window_view_rotation_deg:
         That HDRI's turn about the up axis, degrees.
