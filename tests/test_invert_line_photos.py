@@ -22,6 +22,7 @@ from reroom.invert.line_photos import (
     observe_tube,
     trough_edges,
     trough_fixture,
+    tube_extent,
 )
 from reroom.rays import RayCaster
 from reroom.rays.geometry import segment_distance
@@ -233,3 +234,54 @@ def test_a_degenerate_line_is_refused_with_a_clear_error(photos) -> None:
         observe_tube(frames, lambda f: images[f.index], others, P0, P1, P1 - P0)
     with pytest.raises(ValueError, match="zero length"):
         trough_fixture(P0, P0, UP, (0.07, 0.07), 0.06, 0.1)
+
+
+def _extent(photos, p0, p1, load=None):
+    frames, images = photos
+    mesh, _ = _scene()
+    tube = _observe(photos, p0, p1)
+    lit = [f for f in frames if f.index in {s.frame for s in tube.sightings if s.bright}]
+    dh = (p1 - p0) / np.linalg.norm(p1 - p0)
+    clear = caster_without_fixture(mesh.vertices, mesh.faces, p0 - dh, p1 + dh)
+    load = load or (lambda f: images[f.index])
+    return tube_extent(lit, load, clear, RayCaster(mesh), p0, p1, UP)
+
+
+def test_the_tube_runs_as_far_as_its_stripe_in_the_photos(photos) -> None:
+    # A fused scan held only the second half of the tube bright.
+    half = _extent(photos, P0 + 0.5 * (P1 - P0), P1)
+    assert abs(half.p0[0] - P0[0]) < 0.03 and abs(half.p1[0] - P1[0]) < 0.03
+    assert half.moved_m[0] == pytest.approx(0.6, abs=0.03)
+    np.testing.assert_allclose(half.p0[1:], P0[1:], atol=1e-9)  # along the axis given
+    # A span that is right stays: the stripe overshoots its ends by a pixel at most.
+    whole = _extent(photos, P0, P1)
+    assert whole.moved_m == (0.0, 0.0) and whole.bright.any()
+    # Photos that cannot be read say nothing: the ends stay.
+    frames, images = photos
+    blind = _extent(photos, P0 + 0.5 * (P1 - P0), P1, load=lambda f: None)
+    assert blind.moved_m == (0.0, 0.0) and not blind.seen.any()
+
+
+def test_the_pipeline_extends_a_tube_the_scan_held_in_part(photos, tmp_path) -> None:
+    from reroom.invert.pipeline import InvertOptions, _line_open_shape
+    from reroom.scan import write_scan
+
+    frames, images = photos
+    block = trimesh.creation.box(extents=(1.3, 0.16, CEILING - BAFFLE_BOTTOM - 0.02))
+    block.apply_translation((0.6, 0.0, 0.5 * (CEILING + BAFFLE_BOTTOM + 0.02)))
+    ceiling = trimesh.creation.box(extents=(6.0, 6.0, 0.02))
+    ceiling.apply_translation((0.6, 0.0, CEILING + 0.01))
+    mesh = trimesh.util.concatenate([block, ceiling])
+    write_scan(tmp_path, mesh, frames[0].intrinsics, [f.c2w for f in frames],
+               [images[f.index] for f in frames])  # fmt: skip
+    # Detected on the block's underside, over its second half only, and tilted.
+    p0 = P0 + 0.5 * (P1 - P0) + np.array([0.0, 0.02, -0.03])
+    p1 = P1 + np.array([0.0, 0.02, -0.05])
+    geometry = {"p0": p0, "p1": p1, "d_perp": UP, "radius": 0.037}
+    _, info, g = _line_open_shape(
+        tmp_path, mesh, "tube", geometry, LineBasis(16, 3), InvertOptions(), []
+    )
+    np.testing.assert_allclose(g["p0"], P0, atol=0.03)
+    np.testing.assert_allclose(g["p1"], P1, atol=0.03)
+    photo = info["fixture_from_photos"]
+    assert photo["extent"]["ends_moved_m"][0] > 0.5 and "first_fit" in photo

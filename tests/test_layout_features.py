@@ -56,6 +56,29 @@ def test_window_and_passage_from_see_through_rays():
     assert (p.s0, p.s1, p.z1) == pytest.approx((3.5, 4.4, 2.1), abs=1e-9)
 
 
+def test_a_window_crossed_by_sparse_rays_is_found_at_a_coarser_pooling():
+    # 2 cm cells, each crossed by a ray with probability 0.3 (24 frames of 160x120 cross
+    # a third of the cells near `furnished`'s window once each).
+    g = grids_one_wall(cell=0.02)
+    rng = np.random.default_rng(5)
+    crossed = rng.random(g.surface[0].shape) < 0.3
+    win = rect_cells(g, 1.0, 2.2, 0.9, 2.0)
+    inside = np.zeros_like(crossed)
+    inside[win] = True
+    g.surface[0][crossed & ~inside] = 1
+    g.through[0][crossed & inside] = 1
+    assert ft.find_holes(g, 0, pools=(3,)) == []  # specks, removed by the opening
+    (w,) = ft.find_holes(g, 0)
+    assert w.kind == "window"
+    assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((1.0, 2.2, 0.9, 2.0), abs=0.041)
+    # Densely crossed, every pooling gives the same rectangle: the finest one stays.
+    dense = grids_one_wall(cell=0.02)
+    dense.surface[0][:] = 2
+    dense.surface[0][win] = 0
+    dense.through[0][win] = 2
+    assert ft.find_holes(dense, 0) == ft.find_holes(dense, 0, pools=(3,))
+
+
 def test_small_holes_and_floor_level_holes_are_not_windows():
     g = grids_one_wall()
     g.surface[0][:] = 10
@@ -195,6 +218,17 @@ def test_rays_through_a_window_hole_mark_it_open():
     for name in ("surface", "shallow", "deep", "through"):
         np.testing.assert_array_equal(getattr(g2, name)[0], getattr(g, name)[0])
     assert g2.fh[0].sum() == 0 and g2.n[0].sum() == 0
+    # These 64-pixel-wide frames cast a see-through ray from every pixel; from every
+    # other one in each direction only when asked (the default for frames >= 240 px).
+    g3 = WallGrids.empty(walls, 0.1, 0.0, 2.5)
+    accumulate_frames(
+        g3, frames, RayCaster(mesh), np.eye(3), face_wall, edges=False, through_stride=2
+    )
+    rays = [
+        sum(getattr(gg, n)[0].sum() for n in ("surface", "shallow", "deep", "through"))
+        for gg in (g2, g3)
+    ]
+    assert rays[0] == pytest.approx(4 * rays[1], rel=0.1)
 
 
 # ----------------------------------------------------------------------------- labels
@@ -346,3 +380,42 @@ def test_fast_ply_writer_matches_plyfile(tmp_path):
     )
     back = read_ply(tmp_path / "c.ply")
     assert np.array_equal(back.faces, m.faces)
+
+
+def _two_rooms_walls() -> tuple[list[dict], np.ndarray]:
+    """Two 4 x 4.5 m rooms side by side, a 0.15 m wall between them (x 4.0-4.15)."""
+
+    def wall(index, start, end, n):
+        a, b = np.array(start, float), np.array(end, float)
+        return {"index": index, "start": a, "end": b, "inward_normal": np.array(n, float)}
+
+    left = [
+        wall(0, (0, 0), (4, 0), (0, 1)),
+        wall(1, (4, 0), (4, 4.5), (-1, 0)),
+        wall(2, (4, 4.5), (0, 4.5), (0, -1)),
+        wall(3, (0, 4.5), (0, 0), (1, 0)),
+    ]
+    right = [
+        wall(0, (4.15, 0), (8.15, 0), (0, 1)),
+        wall(1, (8.15, 0), (8.15, 4.5), (-1, 0)),
+        wall(2, (8.15, 4.5), (4.15, 4.5), (0, -1)),
+        wall(3, (4.15, 4.5), (4.15, 0), (1, 0)),
+    ]
+    return left + right, np.array([0, 0, 0, 0, 1, 1, 1, 1])
+
+
+def test_a_window_that_is_the_far_side_of_a_passage_becomes_that_passage():
+    walls, wall_room = _two_rooms_walls()
+    passage = ft.Opening("passage", 1, 1.8, 2.7, 0.0, 2.1)  # left room's wall at x = 4.0
+    # Seen from the right room only from 0.94 m up: a hole that misses the floor. Its
+    # wall runs the other way (y from 4.5 down), so y 2.02-2.68 is s 1.82-2.48.
+    far_side = ft.Opening("window", 7, 1.82, 2.48, 0.94, 1.92)
+    outside = ft.Opening("window", 4, 1.0, 2.4, 0.9, 2.1)  # the right room's y = 0 wall
+    interior = ft.Opening("window", 1, 3.2, 3.9, 1.0, 1.8)  # nothing on the far side
+    out = ft.join_shared_openings([passage, far_side, outside, interior], walls, wall_room)
+    assert [o.kind for o in out] == ["passage", "passage", "window", "window"]
+    assert [o.into for o in out] == [1, 0, -1, 1]
+    assert (out[1].s0, out[1].s1, out[1].z0, out[1].z1) == (1.82, 2.48, 0.0, 2.1)
+    assert far_side.kind == "window"  # the input is left as it was
+    # A wall further than max_gap behind is another room, not the far side of this wall.
+    assert ft.join_shared_openings([far_side], walls, wall_room, max_gap=0.1)[0].into == -1

@@ -407,6 +407,27 @@ def test_layout_window_rectangle() -> None:
     assert model.inside(np.array([[2.0, 1.0], [5.0, 1.0]]), 0.1).tolist() == [True, False]
 
 
+def test_a_layout_window_into_another_room_lets_in_no_daylight(
+    hl_scan: Path, tmp_path: Path
+) -> None:
+    """An opening of the layout that leads into another room is rejected, with its reason."""
+    layout = tmp_path / "layout"
+    shutil.copytree(hl_scan / "layout", layout)
+    doc = json.loads((layout / "layout.json").read_text())
+    room = doc["rooms"][0]
+    opening = {"kind": "window", "wall": 0, "s0": 0.5, "s1": 1.0, "z0": 1.0, "z1": 1.6}
+    room["openings"] = [
+        {**opening, "depth": 0.1},
+        {**opening, "s0": 1.5, "s1": 2.0, "into": "room1"},
+    ]
+    (layout / "layout.json").write_text(json.dumps(doc))
+    ls = detect_lights(hl_scan, layout_dir=layout)
+    (win,) = ls.of_type("window")
+    assert "window opening 0 of the layout" in win.reason
+    (rej,) = [r for r in ls.rejected if r.kind == "window"]
+    assert "opens into room1, not outside" in rej.reason and rej.name == "layout_window1"
+
+
 def test_rectangle_iou() -> None:
     sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     assert rectangle_iou(sq, sq) == pytest.approx(1.0)

@@ -16,7 +16,7 @@ import json
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -541,6 +541,7 @@ def _photo_trough(
         observe_tube,
         trough_edges,
         trough_fixture,
+        tube_extent,
     )
     from reroom.scan import load_scan
 
@@ -571,6 +572,32 @@ def _photo_trough(
             f"({tube.stripe_samples} stripe samples)"
         )
         return None
+    # The fused scan may hold only part of the tube bright: its ends from the photos.
+    reach = 1.0
+    dh = (tube.p1 - tube.p0) / np.linalg.norm(tube.p1 - tube.p0)
+    clear = caster_without_fixture(
+        mesh.vertices, mesh.faces, tube.p0 - reach * dh, tube.p1 + reach * dh
+    )
+    along = None
+    lit = {s.frame for s in tube.sightings if s.bright}
+    if clear is not None and lit:
+        along = tube_extent(
+            [f for f in frames if f.index in lit], load, clear,
+            RayCaster(mesh.vertices, mesh.faces), tube.p0, tube.p1, up, reach=reach,
+        )  # fmt: skip
+        tube = replace(tube, p0=along.p0, p1=along.p1)
+        if max(along.moved_m) > 0.05:
+            # The axis again over the whole tube: a tilt fitted on a part of it would be
+            # carried out to the new ends.
+            again_others = caster_without_fixture(mesh.vertices, mesh.faces, tube.p0, tube.p1)
+            again = (
+                observe_tube(frames, load, again_others, tube.p0, tube.p1, up)
+                if again_others is not None
+                else None
+            )
+            if again is not None and again.residual_m is not None and again.radius is not None:
+                tube = again
+                summary = {**tube.summary(), "first_fit": summary}
     radius = float(tube.radius)
     extent = fixture_extent(mesh.vertices, tube.p0, tube.p1, up, radius)
     if extent is None:
@@ -605,6 +632,7 @@ def _photo_trough(
             "detected_p0": geometry["p0"],
             "detected_p1": geometry["p1"],
             "detected_radius": geometry.get("radius"),
+            **({"extent": along.summary()} if along is not None else {}),
         }
     )
     return caster, new, summary

@@ -83,7 +83,8 @@ class WindowOpening:
 
     @classmethod
     def from_layout(cls, layout_json: dict, *, at_depth: bool = True) -> list[WindowOpening]:
-        """The windows among ``rooms[].openings[]`` of a ``layout.json`` document.
+        """The windows among ``rooms[].openings[]`` of a ``layout.json`` document that
+        open outside (one with ``into``, leading into another room, lets in no daylight).
 
         ``layout.json`` works in its aligned frame (``aligned = rotation @ mesh``);
         the rectangles are returned in the mesh's frame.
@@ -110,7 +111,7 @@ class WindowOpening:
                 walls = room["walls"]
                 k = 0
                 for o in room.get("openings", []):
-                    if o["kind"] != "window":
+                    if o["kind"] != "window" or o.get("into"):
                         continue
                     if not 0 <= int(o["wall"]) < len(walls):
                         raise ReroomError(

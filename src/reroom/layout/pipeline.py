@@ -322,6 +322,7 @@ def layout_scan(
             # and no baseboard stands there.
             seen = np.concatenate([room.seen for room in st.rooms])
             openings = [o for o in openings if seen[o.wall] >= opt.partial_min_seen]
+        openings = ft.join_shared_openings(openings, walls, wall_room)
         ft.measure_depths(openings, st.xyz, st.normals, walls, grids)
         spans = None
         if opt.features:
@@ -371,6 +372,7 @@ def layout_document(
                     "z1": round(o.z1, 4),
                     "depth": round(o.depth, 4),
                     "source": o.source,
+                    **({"into": f"room{o.into}"} if o.into >= 0 else {}),
                 }
             )
         bb = None

@@ -94,9 +94,11 @@ class RoomModel:
     def windows(self) -> list[dict[str, Any]]:
         """Every window opening as a rectangle on the outside face of its wall (world).
 
-        Returns ``{room, wall, centre, half_u, half_v, normal, depth}`` dicts; the
+        Returns ``{room, wall, centre, half_u, half_v, normal, depth, into}`` dicts; the
         rectangle is where the synthetic generator puts its portal emitter: the
-        outer face of the wall, ``depth`` behind the inner face.
+        outer face of the wall, ``depth`` behind the inner face. ``into`` names the room
+        of the layout behind the opening (``""`` where it opens outside): such an
+        opening lets in no daylight.
         """
         out = []
         for room in self.rooms:
@@ -123,6 +125,7 @@ class RoomModel:
                         "normal": self.to_world(np.array([n[0], n[1], 0.0])),
                         "depth": depth,
                         "layout_source": o.get("source", ""),
+                        "into": o.get("into", ""),
                     }
                 )
         return out
