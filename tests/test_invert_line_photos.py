@@ -151,20 +151,27 @@ def test_no_trough_without_a_cutoff(photos) -> None:
     assert trough_edges(tube, 0.06, RADIUS) is None
 
 
-def test_the_pipeline_takes_the_tube_and_trough_from_the_photos(photos, tmp_path) -> None:
-    from reroom.invert.pipeline import InvertOptions, _line_open_shape
+def _fused_scan(photos, folder: Path) -> trimesh.Trimesh:
+    """A fused scan's fixture written with the photos as a scan in ``folder``: one closed
+    block from the baffles' bottom to the ceiling, the tube's lower half poking out of
+    it, and the ceiling around it. Returns the mesh."""
     from reroom.scan import write_scan
 
     frames, images = photos
-    # A fused scan's fixture: one closed block from the baffles' bottom to the ceiling,
-    # the tube's lower half poking out of it, and the ceiling around it.
     block = trimesh.creation.box(extents=(1.3, 0.16, CEILING - BAFFLE_BOTTOM - 0.02))
     block.apply_translation((0.6, 0.0, 0.5 * (CEILING + BAFFLE_BOTTOM + 0.02)))
     ceiling = trimesh.creation.box(extents=(6.0, 6.0, 0.02))
     ceiling.apply_translation((0.6, 0.0, CEILING + 0.01))
     mesh = trimesh.util.concatenate([block, ceiling])
-    write_scan(tmp_path, mesh, frames[0].intrinsics, [f.c2w for f in frames],
+    write_scan(folder, mesh, frames[0].intrinsics, [f.c2w for f in frames],
                [images[f.index] for f in frames])  # fmt: skip
+    return mesh
+
+
+def test_the_pipeline_takes_the_tube_and_trough_from_the_photos(photos, tmp_path) -> None:
+    from reroom.invert.pipeline import InvertOptions, _line_open_shape
+
+    mesh = _fused_scan(photos, tmp_path)
     shift = np.array([0.0, 0.02, -0.04])  # the detected axis, on the block's underside
     geometry = {"p0": P0 + shift, "p1": P1 + shift, "d_perp": UP, "radius": 0.037}
     basis = LineBasis(16, 3)
@@ -264,16 +271,8 @@ def test_the_tube_runs_as_far_as_its_stripe_in_the_photos(photos) -> None:
 
 def test_the_pipeline_extends_a_tube_the_scan_held_in_part(photos, tmp_path) -> None:
     from reroom.invert.pipeline import InvertOptions, _line_open_shape
-    from reroom.scan import write_scan
 
-    frames, images = photos
-    block = trimesh.creation.box(extents=(1.3, 0.16, CEILING - BAFFLE_BOTTOM - 0.02))
-    block.apply_translation((0.6, 0.0, 0.5 * (CEILING + BAFFLE_BOTTOM + 0.02)))
-    ceiling = trimesh.creation.box(extents=(6.0, 6.0, 0.02))
-    ceiling.apply_translation((0.6, 0.0, CEILING + 0.01))
-    mesh = trimesh.util.concatenate([block, ceiling])
-    write_scan(tmp_path, mesh, frames[0].intrinsics, [f.c2w for f in frames],
-               [images[f.index] for f in frames])  # fmt: skip
+    mesh = _fused_scan(photos, tmp_path)
     # Detected on the block's underside, over its second half only, and tilted.
     p0 = P0 + 0.5 * (P1 - P0) + np.array([0.0, 0.02, -0.03])
     p1 = P1 + np.array([0.0, 0.02, -0.05])
