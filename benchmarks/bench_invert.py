@@ -196,7 +196,8 @@ def speed_table(scan: str, out: str | None = None, options: dict | None = None) 
     }
     # Point-light refinement: one shadow ray per fitted receiver per trial position, and
     # the moved lights' transfer recomputed on every receiver.
-    refined = [e.get("refinement") for e in res.light_info if e.get("refinement")]
+    # A light placed from its ceiling pool's edge is not refined (its entry says why).
+    refined = [e["refinement"] for e in res.light_info if "evaluations" in e.get("refinement", {})]
     if refined:
         fitted = min(clustered, opts.refine_max_receivers)
         moved = sum(1 for e in res.light_info if "refined_from" in e)
