@@ -201,6 +201,30 @@ def test_a_window_view_is_an_input_of_the_inverse_rendering(first_run, tmp_path:
     assert r.exit_code != 0 and "junk.exr" in r.output and "Traceback" not in r.output
 
 
+def test_a_scan_s_own_window_view_is_taken(first_run, tmp_path: Path) -> None:
+    """A scan folder's ``window_view.exr`` is the captured view when none is given."""
+    from reroom.io.images import write_exr
+    from reroom.run import WINDOW_VIEW_FILE
+
+    scan, out, edits, _ = first_run
+    run = tmp_path / "copy"
+    shutil.copytree(out, run, symlinks=True)
+    sky = np.ones((16, 32, 3), np.float32)
+    sky[:8] *= 3.0
+    own = scan / WINDOW_VIEW_FILE
+    try:
+        write_exr(own, sky)
+        res = run_scan(scan, _opts(run, edits))
+        assert _status(res)["invert"] == "ran"
+        assert read_record(run / "invert")["options"]["window_view_hdri"] == WINDOW_VIEW_FILE
+        assert any(WINDOW_VIEW_FILE in n for n in res.notes)
+        own.write_bytes(b"not an exr")  # refused before any work, its source named
+        with pytest.raises(ReroomError, match=f"the scan's {WINDOW_VIEW_FILE}"):
+            run_scan(scan, _opts(run, edits))
+    finally:
+        own.unlink(missing_ok=True)
+
+
 def test_run_folder_links_the_scan_and_may_live_inside_it(tmp_path: Path) -> None:
     from conftest import make_scan
 

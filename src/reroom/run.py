@@ -29,7 +29,7 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,10 @@ ProgressFn = Callable[[str, int, int], None]
 
 #: The stages of a run, in order.
 STAGES = ("hdr", "layout", "lights", "invert", "rerender", "edits", "report")
+
+#: A captured view of the windows that a scan folder may hold (docs/formats.md): used
+#: as ``RunOptions.window_view`` when none is given.
+WINDOW_VIEW_FILE = "window_view.exr"
 
 #: Names in a run folder that belong to the run (never linked from the scan).
 RESERVED = frozenset({*STAGES, "report.html", "localize", "render", "run.json", "model_meshes"})
@@ -107,6 +111,8 @@ class RunOptions:
         through a window and cannot give that pattern; on `furnished` and `box_points`
         the view brings every albedo within 2.2 % and 1.9 % (docs/benchmarks.md,
         sessions 19 and 25). Its content is an input of the invert stage.
+        Without it, the scan folder's ``window_view.exr`` is taken when there is one
+        (:data:`WINDOW_VIEW_FILE`: a capture app may leave it there).
     window_view_rotation_deg:
         That HDRI's turn about the up axis, degrees.
     """
@@ -569,8 +575,14 @@ def run_scan(
         )
     if opt.edits_file is not None:
         load_edit_file(opt.edits_file)  # bad edit files fail before any work
+    notes: list[str] = []
+    given = "--window-view"
+    if opt.window_view is None and (Path(scan_dir) / WINDOW_VIEW_FILE).is_file():
+        opt = replace(opt, window_view=Path(scan_dir) / WINDOW_VIEW_FILE)
+        notes.append(f"the scan's {WINDOW_VIEW_FILE} is the captured view of its windows")
+        given = f"the scan's {WINDOW_VIEW_FILE}"
     if opt.window_view is not None:
-        _check_window_view(Path(opt.window_view))
+        _check_window_view(Path(opt.window_view), given)
     t0 = time.perf_counter()
     run = prepare_run_dir(scan_dir, opt.out_dir)
     results: list[StageResult] = []
@@ -588,7 +600,6 @@ def run_scan(
     seconds = time.perf_counter() - t0
     _write_run_json(run, results, seconds)
     report: Path | None = run / "report.html"
-    notes: list[str] = []
     if failed is not None:
         from reroom.report import write_report
 
@@ -600,15 +611,16 @@ def run_scan(
     return RunResult(run, results, report, failed, seconds, notes)
 
 
-def _check_window_view(path: Path) -> None:
-    """A window view that cannot be read fails before any work, naming the file (the
-    inverse rendering's own check, :func:`reroom.invert.window_env.read_view_hdri`)."""
+def _check_window_view(path: Path, given: str = "--window-view") -> None:
+    """A window view that cannot be read fails before any work, naming the file and
+    where it came from, ``given`` (the inverse rendering's own check,
+    :func:`reroom.invert.window_env.read_view_hdri`)."""
     from reroom.invert.window_env import read_view_hdri
 
     try:
         read_view_hdri(path)
     except ScanError as exc:
-        raise ReroomError(f"--window-view: {exc}") from exc
+        raise ReroomError(f"{given}: {exc}") from exc
 
 
 def _write_run_json(run: Path, results: list[StageResult], seconds: float) -> None:
