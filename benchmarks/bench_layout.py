@@ -22,11 +22,18 @@ Parts, each printing a markdown table:
 ``--slambook2``
     The real slambook2 RGB-D frames (a partial room), imported with
     :func:`reroom.importers.import_rgbd_folder`: what the layout finds.
+``--scans NAME=DIR ...``
+    Any scan folders (e.g. the 24-frame 160x120 scans of few, small frames; their
+    ``hdr/hdr_mesh.ply`` is used as the bright-window cue when present, as ``reroom
+    layout`` does): every opening found (kind, room, wall, extent, the room it opens
+    ``into``) and, where the scan has a ground truth, the doors, windows, passages and
+    baseboard pieces matched against it.
 
 Usage (niced; the machine is shared)::
 
     nice -n 10 python benchmarks/bench_layout.py --accuracy --methods
     nice -n 10 python benchmarks/bench_layout.py --speed --slambook2
+    python benchmarks/bench_layout.py --scans demo=/tmp/demo tworooms24=/tmp/tw
 """
 
 from __future__ import annotations
@@ -117,6 +124,39 @@ def accuracy(cache: Path, mesh: str = "fused") -> list[dict]:
             f"| {e['seconds']:.1f} |"
         )
     return rows
+
+
+def scans(named: list[str]) -> None:
+    """The openings of the named scan folders (``NAME=DIR``), against their truth."""
+    from reroom.layout import LayoutOptions, run_layout
+    from reroom.layout.evaluate import evaluate_scan
+
+    print(f"\n### Openings of the given scans (load {_load()})\n")
+    print(
+        "| scan | doors | windows | passages | baseboard pieces | openings (room wall kind: s0-s1 x z0-z1 m, into) |"
+    )
+    print("|---|---|---|---|---|---|")
+    for item in named:
+        name, _, folder = item.partition("=")
+        scan = Path(folder)
+        hdr = scan / "hdr" / "hdr_mesh.ply"
+        out = OUT / f"scans_{name}"
+        run_layout(scan, out, LayoutOptions(radiance=hdr if hdr.is_file() else None))
+        doc = json.loads((out / "layout.json").read_text())
+        ops = "; ".join(
+            f"{r['name']} {o['wall']} {o['kind']}: {o['s0']:.2f}-{o['s1']:.2f} x "
+            f"{o['z0']:.2f}-{o['z1']:.2f}" + (f", into {o['into']}" if "into" in o else "")
+            for r in doc["rooms"]
+            for o in r["openings"]
+        )
+        cells = ["-"] * 4
+        if (scan / "ground_truth").is_dir():
+            f = evaluate_scan(out / "layout.json", scan, out / "layout_labels.ply")["features"]
+            cells = [
+                f"{f[k]['matched']}/{f[k]['true']} ({f[k]['found']} found)"
+                for k in ("door", "window", "passage", "baseboard")
+            ]
+        print(f"| {name} | {' | '.join(cells)} | {ops or 'none'} |")
 
 
 # --------------------------------------------------------------------------- methods
@@ -413,9 +453,13 @@ def main() -> None:
     ap.add_argument("--figures", type=Path, default=None, help="write the docs pictures here")
     ap.add_argument("--cache", type=Path, default=CACHE)
     ap.add_argument("--mesh", default="fused", choices=("fused", "clean"), help="for --accuracy")
+    ap.add_argument("--scans", nargs="+", default=[], metavar="NAME=DIR")
     args = ap.parse_args()
-    if not (args.accuracy or args.methods or args.speed or args.slambook2 or args.figures):
+    parts = (args.accuracy, args.methods, args.speed, args.slambook2, args.figures, args.scans)
+    if not any(parts):
         args.accuracy = True
+    if args.scans:
+        scans(args.scans)
     if args.accuracy:
         accuracy(args.cache, args.mesh)
     if args.methods:
