@@ -436,9 +436,10 @@ DEFAULT_TUBE_RADIUS = 0.013
 
 def _line_open_shape(
     scan: Path, mesh, name: str, geometry: dict, basis: LineBasis, options: InvertOptions,
-    notes: list[str],
+    notes: list[str], caster: RayCaster | None = None,
 ) -> tuple[np.ndarray | None, dict, dict]:  # fmt: skip
     """The open fraction of a line light's tube per bin, its info, and its geometry.
+    (``caster``: the whole scan's, for the photos' view of the tube, if the caller has one.)
 
     From the scanned fixture where the scan resolves it. Where it does not (rays from
     the tube leave through back faces: :func:`~reroom.invert.line_fixture.inside_fraction`,
@@ -467,7 +468,7 @@ def _line_open_shape(
             )
             info["fixture_inside_fraction"] = round(inside, 4)
             found = (
-                _photo_trough(scan, mesh, name, geometry, options, notes)
+                _photo_trough(scan, mesh, name, geometry, options, notes, caster)
                 if options.line_photo_fixture
                 else None
             )
@@ -532,9 +533,16 @@ def _point_open_shape(
 
 
 def _photo_trough(
-    scan: Path, mesh, name: str, geometry: dict, options: InvertOptions, notes: list[str]
+    scan: Path,
+    mesh,
+    name: str,
+    geometry: dict,
+    options: InvertOptions,
+    notes: list[str],
+    caster: RayCaster | None = None,
 ) -> tuple[Any, dict, dict] | None:
-    """A line light's tube and trough from the photos (None, with a note, when they fail)."""
+    """A line light's tube and trough from the photos (None, with a note, when they fail).
+    ``caster``: the whole scan's, if the caller has one (else one is built)."""
     from reroom.invert.line_photos import (
         caster_without_fixture,
         fixture_extent,
@@ -583,10 +591,10 @@ def _photo_trough(
     if clear is not None and lit:
         along = tube_extent(
             [f for f in frames if f.index in lit], load, clear,
-            RayCaster(mesh.vertices, mesh.faces), tube.p0, tube.p1, up, reach=reach,
+            caster or RayCaster(mesh.vertices, mesh.faces), tube.p0, tube.p1, up, reach=reach,
         )  # fmt: skip
         tube = replace(tube, p0=along.p0, p1=along.p1)
-        if max(along.moved_m) > 0.05:
+        if any(along.moved_m):  # an end moves by tube_extent's min_move or not at all
             # The axis again over the whole tube: a tilt fitted on a part of it would be
             # carried out to the new ends.
             again_others = caster_without_fixture(mesh.vertices, mesh.faces, tube.p0, tube.p1)
@@ -996,7 +1004,7 @@ def run_invert(
             )
         elif light.type == "line":
             shape, open_info, g = _line_open_shape(
-                scan, mesh, light.name, g, line_basis, options, notes
+                scan, mesh, light.name, g, line_basis, options, notes, caster
             )
             light.geometry = g
             f = line_light_transfer(

@@ -470,16 +470,12 @@ def find_holes(
         for o in _holes_at(
             grids, k, size, min_fraction, min_size, min_fill, passage_top, floor_tol, bright_min
         ):
-            under = [f for f in found if _overlap_area(o, f) > 0]
+            under = [f for f in found if o.iou(f) > 0]
             if not under:
                 found.append(o)
             elif o.width * o.height >= min_gain * sum(f.width * f.height for f in under):
                 found = [f for f in found if f not in under] + [o]
     return sorted(found, key=lambda o: (o.s0, o.z0))
-
-
-def _overlap_area(a: Opening, b: Opening) -> float:
-    return max(0.0, min(a.s1, b.s1) - max(a.s0, b.s0)) * max(0.0, min(a.z1, b.z1) - max(a.z0, b.z0))
 
 
 def _holes_at(
