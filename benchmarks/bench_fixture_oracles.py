@@ -135,19 +135,30 @@ def trough_variants(scan: Path) -> None:
     print(f"photos: radius {1000 * tube.radius:.1f} mm, scanned underside {1000 * bottom:.0f} mm, "
           f"top {1000 * top:.0f} mm; truth: radius {1000 * truth['radius']:.1f} mm, baffles' "
           f"bottom {1000 * true_bottom:.0f} mm, half gap {1000 * baffles['half_gap']:.0f} mm\n")  # fmt: skip
-    print("| trough | edges (mm) | open fraction L2 |\n|---|---|---|")
+    print("| trough | edges (mm) | bottom (mm) | open fraction L2 |\n|---|---|---|---|")
 
-    def row(name: str, radius: float, b: float, t: float, edges=None) -> None:
-        e = edges if edges is not None else trough_edges(tube, b, radius)[0]
-        c = trough_fixture(tube.p0, tube.p1, up, e, b, t)
+    def row(name: str, radius: float, b: float, t: float, edges=None, **fit) -> None:
+        if edges is None:
+            # held=True: the depth given is kept (the pipeline before session 27).
+            held = fit.pop("held", True)
+            trough = trough_edges(tube, b, radius, **({"bottom_sigma": 1e-9} if held else fit))
+            edges, b = trough.edges, trough.bottom
+        c = trough_fixture(tube.p0, tube.p1, up, edges, b, t)
         o = line_open_fraction(c.occluded, tube.p0, tube.p1, up, radius, basis, opts.line_clearance)
         l2 = np.linalg.norm(o - true_open) / np.linalg.norm(true_open)
-        print(f"| {name} | {1000 * e[0]:.0f}, {1000 * e[1]:.0f} | {100 * l2:.1f} % |")
+        print(
+            f"| {name} | {1000 * edges[0]:.0f}, {1000 * edges[1]:.0f} | {1000 * b:.0f} "
+            f"| {100 * l2:.1f} % |"
+        )
 
     r_true = float(truth["radius"])
     # The true housing's underside: the generator puts it 5 cm above the axis.
     housing = 0.05
-    row("as built", tube.radius, bottom, top)
+    row("as built: depth fitted to the part-hidden views", tube.radius, bottom, top, held=False)
+    for px in (0.25, 1.0):
+        row(f"the same, widths good to {px} px", tube.radius, bottom, top, held=False,
+            width_sigma_px=px)  # fmt: skip
+    row("scanned depth held (before session 27)", tube.radius, bottom, top)
     row("true baffle depth", tube.radius, true_bottom, top)
     row("top level with the bottom", tube.radius, bottom, bottom)
     row("true radius", r_true, bottom, top)
@@ -160,8 +171,8 @@ def true_fixture(scan: Path, work: Path) -> None:
     truth = _true(scan, "line")
     own = pipeline._photo_trough
 
-    def with_true_parts(scan_dir, mesh, name, geometry, options, notes):
-        found = own(scan_dir, mesh, name, geometry, options, notes)
+    def with_true_parts(scan_dir, mesh, name, geometry, options, notes, caster=None):
+        found = own(scan_dir, mesh, name, geometry, options, notes, caster)
         if found is None:
             return None
         _, g, info = found

@@ -16,6 +16,8 @@ import trimesh
 from reroom.invert.basis import LineBasis
 from reroom.invert.line_fixture import line_open_fraction
 from reroom.invert.line_photos import (
+    PhotoTube,
+    TubeSighting,
     caster_without_fixture,
     cutoff_angle,
     fixture_extent,
@@ -55,15 +57,18 @@ def _scene() -> tuple[trimesh.Trimesh, int]:
     return trimesh.util.concatenate([tube, _fixture_mesh(), ceiling]), len(tube.faces)
 
 
-def _frames() -> tuple[list[Frame], dict[int, np.ndarray]]:
-    """Cameras at 1.5 m on one side of the tube (y <= 0.5 m), each photo rendered."""
+def _frames(
+    width: int = 160, height: int = 120, sub_px: int = 4
+) -> tuple[list[Frame], dict[int, np.ndarray]]:
+    """Cameras at 1.5 m on one side of the tube (y <= 0.5 m), each photo rendered
+    (``sub_px`` x ``sub_px`` rays a pixel)."""
     mesh, n_tube = _scene()
     caster = RayCaster(mesh)
-    intr = Intrinsics.from_fov(160, 120, 60.0)
+    intr = Intrinsics.from_fov(width, height, 60.0)
     rng = np.random.default_rng(3)
     frames, images = [], {}
     eyes = [(x, y, 1.5) for y in np.linspace(-3.2, 0.5, 12) for x in (-0.4, 0.6, 1.6)]
-    sub = (np.arange(4) + 0.5) / 4
+    sub = (np.arange(sub_px) + 0.5) / sub_px
     ox, oy = np.meshgrid(sub, sub)
     for i, eye in enumerate(eyes):
         target = np.array([0.6 + rng.uniform(-0.3, 0.3), 0.0, AXIS_Z])
@@ -75,7 +80,7 @@ def _frames() -> tuple[list[Frame], dict[int, np.ndarray]]:
         o, d = frame.pixel_rays(uv)
         hits = caster.intersect(o, d)
         radiance = np.where(hits.hit & (hits.face < n_tube), 30.0, 0.4)
-        pixel = radiance.reshape(intr.height, intr.width, 16).mean(axis=2)
+        pixel = radiance.reshape(intr.height, intr.width, sub_px**2).mean(axis=2)
         images[i] = np.repeat(
             (np.clip(pixel, 0, 1) * 255 + 0.5).astype(np.uint8)[..., None], 3, axis=2
         )
@@ -86,6 +91,12 @@ def _frames() -> tuple[list[Frame], dict[int, np.ndarray]]:
 @pytest.fixture(scope="module")
 def photos() -> tuple[list[Frame], dict[int, np.ndarray]]:
     return _frames()
+
+
+@pytest.fixture(scope="module")
+def fine_photos() -> tuple[list[Frame], dict[int, np.ndarray]]:
+    """The same views at 320x240: the tube 4-5 pixels wide, so part of it can be seen."""
+    return _frames(320, 240, 2)
 
 
 def _observe(photos, p0, p1):
@@ -121,20 +132,69 @@ def test_the_trough_leaves_the_tube_open_as_the_true_fixture_does(photos) -> Non
     bottom, top = fixture_extent(mesh.vertices, tube.p0, tube.p1, UP, tube.radius)
     assert bottom == pytest.approx(AXIS_Z - BAFFLE_BOTTOM, abs=0.005)
     assert top == pytest.approx(CEILING - AXIS_Z, abs=0.005)
-    edges, how = trough_edges(tube, bottom, tube.radius)
-    assert "mirrored" in how[0] and "deg" in how[1]
+    trough = trough_edges(tube, bottom, tube.radius)
+    assert "mirrored" in trough.how[0] and "deg" in trough.how[1]
+    edges = trough.edges
     assert edges[0] == edges[1] and abs(edges[1] - HALF_GAP) < 0.015
+    assert abs(trough.bottom - bottom) < 0.006  # the scanned depth was right
     basis = LineBasis(16, 3)
-    ours = line_open_fraction(
-        trough_fixture(tube.p0, tube.p1, UP, edges, bottom, top).occluded,
-        tube.p0, tube.p1, UP, tube.radius, basis, 0.3, samples=64,
-    )  # fmt: skip
+    ours = _trough_open(tube, trough, top, basis)
+    true = _true_open(basis)
+    assert np.linalg.norm(ours - true) / np.linalg.norm(true) < 0.15
+    assert np.all(ours[basis.index(np.arange(7), 0)] <= 0.05)  # upwards, across: the housing
+
+
+def _trough_open(tube, trough, top: float, basis: LineBasis) -> np.ndarray:
+    caster = trough_fixture(tube.p0, tube.p1, UP, trough.edges, trough.bottom, top)
+    return line_open_fraction(
+        caster.occluded, tube.p0, tube.p1, UP, tube.radius, basis, 0.3, samples=64
+    )
+
+
+def _true_open(basis: LineBasis) -> np.ndarray:
     mesh, n_tube = _scene()
     keep = np.arange(len(mesh.faces)) >= n_tube  # the fixture and the ceiling
     fixture = RayCaster(mesh.vertices, mesh.faces[keep], eps=1e-6)
-    true = line_open_fraction(fixture.occluded, P0, P1, UP, RADIUS, basis, 0.3, samples=64)
-    assert np.linalg.norm(ours - true) / np.linalg.norm(true) < 0.15
-    assert np.all(ours[basis.index(np.arange(7), 0)] <= 0.05)  # upwards, across: the housing
+    return line_open_fraction(fixture.occluded, P0, P1, UP, RADIUS, basis, 0.3, samples=64)
+
+
+def test_a_shallow_scanned_underside_is_corrected_by_the_part_hidden_views(fine_photos) -> None:
+    # A fused scan's block ends 6 mm above the baffles' bottom (as on `furnished`): with
+    # that depth held, the part-hidden views and the cut-off disagree; fitted, the depth
+    # moves toward the truth and the trough's open fraction toward the true fixture's.
+    tube = _observe(fine_photos, P0, P1)
+    depth, shallow, top = AXIS_Z - BAFFLE_BOTTOM, AXIS_Z - BAFFLE_BOTTOM - 0.006, 0.1
+    held = trough_edges(tube, shallow, tube.radius, bottom_sigma=1e-6)
+    fitted = trough_edges(tube, shallow, tube.radius)
+    assert abs(held.bottom - shallow) < 1e-5
+    assert "fitted to the part-hidden views" in fitted.bottom_from
+    assert abs(fitted.bottom - depth) < abs(shallow - depth)
+    basis = LineBasis(16, 3)
+    true = _true_open(basis)
+
+    def err(t):
+        return np.linalg.norm(_trough_open(tube, t, top, basis) - true) / np.linalg.norm(true)
+
+    assert err(fitted) < err(held)
+
+
+def test_views_too_coarse_to_see_part_of_the_tube_leave_the_scanned_depth() -> None:
+    # One part-hidden view where the whole tube would span 1.6 pixels: its width says
+    # nothing, so the depth stays the scanned one and the edge is the bracket's middle.
+    sightings = [
+        TubeSighting(0, 20.0, True, 10, 0.032, 0.02),
+        TubeSighting(1, 47.0, True, 10, 0.015, 0.02),
+        TubeSighting(2, 60.0, False, 10),
+        TubeSighting(3, 62.0, False, 10),
+    ]
+    tube = PhotoTube(P0, P1, (0.0, 0.0), 30, 3, 0.001, RADIUS, sightings, (None, 53.5))
+    trough = trough_edges(tube, 0.054, RADIUS)
+    assert trough.bottom == 0.054 and trough.bottom_from == "scanned"
+    assert "hidden from 47.0-60.0 deg" in trough.how[1] and trough.how[0] == "mirrored"
+    # The same view in a finer photo (0.5 cm pixels) counts, and moves the depth.
+    sightings[1] = TubeSighting(1, 47.0, True, 10, 0.015, 0.005)
+    fine = trough_edges(tube, 0.054, RADIUS)
+    assert "1 partial views" in fine.how[1] and fine.bottom_from.startswith("fitted")
 
 
 def test_cutoff_angle_needs_dark_sightings_beyond_the_bright_ones() -> None:

@@ -612,16 +612,15 @@ def _photo_trough(
         notes.append(f"line light {name!r}: no scanned fixture around its tube for a trough")
         return None
     bottom, top = extent
-    found = trough_edges(tube, bottom, radius) if bottom > radius else None
-    if found is None:
+    trough = trough_edges(tube, bottom, radius) if bottom > radius else None
+    if trough is None:
         notes.append(
             f"line light {name!r}: the photos bound no trough around its tube "
             f"(cut-off {summary['cutoff_deg']}, scanned underside {bottom:.3f} m below the axis)"
         )
         return None
-    edges, how = found
     top = max(top, radius + 0.01)
-    caster = trough_fixture(tube.p0, tube.p1, up, edges, bottom, top)
+    caster = trough_fixture(tube.p0, tube.p1, up, trough.edges, trough.bottom, top)
     new = dict(geometry)
     new.update(
         {
@@ -633,9 +632,10 @@ def _photo_trough(
     )
     summary.update(
         {
-            "trough_edges_m": [round(e, 4) for e in edges],
-            "trough_edges_from": how,
-            "trough_bottom_m": round(bottom, 4),
+            "trough_edges_m": [round(e, 4) for e in trough.edges],
+            "trough_edges_from": trough.how,
+            "trough_bottom_m": round(trough.bottom, 4),
+            "trough_bottom_from": trough.bottom_from,
             "trough_top_m": round(top, 4),
             "detected_p0": geometry["p0"],
             "detected_p1": geometry["p1"],
