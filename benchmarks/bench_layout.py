@@ -111,7 +111,8 @@ def accuracy(cache: Path, mesh: str = "fused") -> list[dict]:
 
         def pr(k: str, f=f) -> str:
             x = f[k]
-            return f"{x['matched']}/{x['true']} found, {x['found'] - x['matched']} false"
+            edges = f", edges {x['edge_error_cm']:.1f} cm" if "edge_error_cm" in x else ""
+            return f"{x['matched']}/{x['true']} found, {x['found'] - x['matched']} false{edges}"
 
         bb = f["baseboard"]
         print(
@@ -153,7 +154,9 @@ def scans(named: list[str]) -> None:
         if (scan / "ground_truth").is_dir():
             f = evaluate_scan(out / "layout.json", scan, out / "layout_labels.ply")["features"]
             cells = [
-                f"{f[k]['matched']}/{f[k]['true']} ({f[k]['found']} found)"
+                f"{f[k]['matched']}/{f[k]['true']} ({f[k]['found']} found"
+                + (f"; edges {f[k]['edge_error_cm']:.1f} cm" if "edge_error_cm" in f[k] else "")
+                + ")"
                 for k in ("door", "window", "passage", "baseboard")
             ]
         print(f"| {name} | {' | '.join(cells)} | {ops or 'none'} |")

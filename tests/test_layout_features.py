@@ -231,6 +231,39 @@ def test_rays_through_a_window_hole_mark_it_open():
     assert rays[0] == pytest.approx(4 * rays[1], rel=0.1)
 
 
+def test_rays_that_meet_a_window_s_reveal_count_it_open():
+    # Cameras to the left of a window in a 20 cm deep wall look at it obliquely: near its
+    # right edge their rays cross the wall plane inside the opening and meet the reveal
+    # a few centimetres behind it. Counted as shallow recesses (as before session 27)
+    # those rays shrank the window by 10 cm; counted as open (``jamb``), it is whole.
+    room = RoomSpec(
+        np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
+        0.0,
+        2.5,
+        [Opening("window", 0, 1.6, 2.8, 0.9, 2.0, 0.2)],
+    )
+    parts, _ = build_room(room, 0.05, MATERIALS, baseboard=None)
+    pc = Piece.concat([p.piece for p in parts])
+    mesh = trimesh.Trimesh(pc.vertices, pc.faces, process=False)
+    intr = Intrinsics.from_fov(160, 120, 60.0)
+    walls = [
+        {**w, "length": float(np.linalg.norm(np.subtract(w["end"], w["start"])))}
+        for w in room_layout(room, None)["walls"]
+    ]
+    eyes = [[0.2 + 0.1 * i, 1.0 + 0.2 * (i % 3), 1.0 + 0.5 * (i % 2)] for i in range(8)]
+    frames = [Frame(i, None, look_at(e, [2.2, 0.0, 1.45]), intr) for i, e in enumerate(eyes)]
+    g = WallGrids.empty(walls, 0.02, 0.0, 2.5)
+    accumulate_frames(
+        g, frames, RayCaster(mesh), np.eye(3), np.full(len(mesh.faces), -1), edges=False
+    )
+    assert g.jamb[0].sum() > 0 and np.all(g.jamb[0] <= g.shallow[0])
+    (w,) = ft.find_holes(g, 0)
+    assert (w.s0, w.s1, w.z0, w.z1) == pytest.approx((1.6, 2.8, 0.9, 2.0), abs=0.025)
+    g.jamb = []  # the reveal's rays as shallow recesses only
+    (shrunk,) = ft.find_holes(g, 0)
+    assert shrunk.s1 < 2.8 - 0.05
+
+
 # ----------------------------------------------------------------------------- labels
 
 

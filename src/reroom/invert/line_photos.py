@@ -542,9 +542,12 @@ def trough_edges(
     at the tube (``width_sigma_m`` where the sighting has none): the stripe's edges are
     interpolated between pixels, and saturation spreads them by a fraction of a pixel
     (the photos' radius is 0.9-1.8 mm over the truth on `furnished`, a tenth to a fifth
-    of a pixel), so a 160x120 photo's width says little and a 640x360 one's much.
-    ``bottom_sigma``: about a 3 cm voxel's quantisation. Written by hand: a
-    one-parameter search with a closed-form inner fit.
+    of a pixel), so a 160x120 photo's width says little and a 640x360 one's much. Of a
+    quarter, a half and a whole pixel, a half gave the best open fraction on the 320x180
+    fused `furnished` scan and came within 0.3 points of the best (a whole) on the
+    640x360 one (docs/invert.md, session 27). ``bottom_sigma``:
+    about a 3 cm voxel's quantisation. Written by hand: a one-parameter search with a
+    median inner fit.
 
     A side the photos do not bound takes the other's edge (fixtures are symmetric).
     Returns None without any cut-off or when an edge would fall within the tube's own

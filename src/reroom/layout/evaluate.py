@@ -181,8 +181,11 @@ def _pr(matches: int, n_est: int, n_gt: int) -> dict[str, Any]:
     }
 
 
-def _greedy_match(est: list[tuple], gt: list[tuple], min_iou: float) -> int:
-    """One-to-one matches of rectangles ``(gt_wall_key, u0, u1, v0, v1)`` by IoU."""
+def _greedy_match(
+    est: list[tuple], gt: list[tuple], min_iou: float
+) -> tuple[int, list[float], list[float]]:
+    """One-to-one matches of rectangles ``(gt_wall_key, u0, u1, v0, v1)`` by IoU: their
+    number, and per match the IoU and the mean distance of the four edges (metres)."""
     pairs = []
     for i, e in enumerate(est):
         for j, g in enumerate(gt):
@@ -192,14 +195,16 @@ def _greedy_match(est: list[tuple], gt: list[tuple], min_iou: float) -> int:
             if iou >= min_iou:
                 pairs.append((iou, i, j))
     used_e, used_g = set(), set()
-    n = 0
-    for _, i, j in sorted(pairs, reverse=True):
+    ious: list[float] = []
+    edges: list[float] = []
+    for iou, i, j in sorted(pairs, reverse=True):
         if i in used_e or j in used_g:
             continue
         used_e.add(i)
         used_g.add(j)
-        n += 1
-    return n
+        ious.append(float(iou))
+        edges.append(float(np.mean(np.abs(np.subtract(est[i][1:], gt[j][1:])))))
+    return len(ious), ious, edges
 
 
 def evaluate_layout(
@@ -304,14 +309,15 @@ def evaluate_layout(
                         r["floor_z"] + bb["height"],
                     )[:1]
                 )
-    features = {
-        k: _pr(
-            _greedy_match(est_rects.get(k, []), gt_rects[k], min_iou),
-            n_est.get(k, 0),
-            len(gt_rects[k]),
-        )
-        for k in (*_KINDS, "baseboard")
-    }
+    features = {}
+    for k in (*_KINDS, "baseboard"):
+        n, ious, edges = _greedy_match(est_rects.get(k, []), gt_rects[k], min_iou)
+        features[k] = _pr(n, n_est.get(k, 0), len(gt_rects[k]))
+        if n:
+            # How well the matched rectangles sit: their IoU, and how far their edges are
+            # from the truth's (mean of the four, then over the matches).
+            features[k]["mean_iou"] = float(np.mean(ious))
+            features[k]["edge_error_cm"] = 100.0 * float(np.mean(edges))
     bb_true = [r["baseboard"] for r in truth["rooms"] if r.get("baseboard")]
     bb_est = [r["baseboard"] for r in layout["rooms"] if r.get("baseboard")]
     if bb_true and bb_est:

@@ -424,10 +424,13 @@ def opening_fraction(
     grids: WallGrids, k: int, min_rays: int = 3, size: int = 3
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per cell of wall ``k``: the fraction of crossing rays that went through or deep
-    behind the plane, pooled over the ``size x size`` neighbourhood, and a mask of cells
-    whose neighbourhood was crossed by at least ``min_rays`` rays."""
+    behind the plane, or ended on a reveal across it (``jamb``: near an opening's edge an
+    oblique ray meets the reveal a few centimetres in), pooled over the ``size x size``
+    neighbourhood, and a mask of cells whose neighbourhood was crossed by at least
+    ``min_rays`` rays."""
     total = _pooled(grids.surface[k] + grids.shallow[k] + grids.deep[k] + grids.through[k], size)
-    far = _pooled(grids.through[k] + grids.deep[k], size)
+    jamb = grids.jamb[k] if grids.jamb else 0.0
+    far = _pooled(grids.through[k] + grids.deep[k] + jamb, size)
     frac = np.divide(far, total, out=np.zeros_like(total), where=total > 0)
     return frac, total >= min_rays
 

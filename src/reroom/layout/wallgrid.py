@@ -48,6 +48,11 @@ class WallGrids:
         nowhere (an opening).
     recess_sum:
         Summed depth behind the plane of the ``shallow`` and ``deep`` rays.
+    jamb:
+        The ``shallow`` rays that ended on a face across the wall plane (its normal
+        within 60 degrees of the plane): a window's reveal or sill, a door's jamb. Such
+        a ray crossed the plane where the wall is open, however shallow it ended: near
+        an opening's edge an oblique ray meets the reveal a few centimetres in.
     bright:
         Count of bright (HDR) vertices per cell, when radiance was given.
     """
@@ -64,6 +69,7 @@ class WallGrids:
     deep: list[np.ndarray] = field(default_factory=list)
     through: list[np.ndarray] = field(default_factory=list)
     recess_sum: list[np.ndarray] = field(default_factory=list)
+    jamb: list[np.ndarray] = field(default_factory=list)
     bright: list[np.ndarray] = field(default_factory=list)
 
     @staticmethod
@@ -82,6 +88,7 @@ class WallGrids:
                 "deep",
                 "through",
                 "recess_sum",
+                "jamb",
                 "bright",
             ):
                 getattr(g, name).append(np.zeros((ns, nz)))
@@ -275,8 +282,17 @@ def accumulate_frames(
     n_walls = len(grids.walls)
     acc: dict[str, list[tuple[np.ndarray, np.ndarray | None]]] = {
         name: []
-        for name in ("n", "fh", "fv", "surface", "shallow", "deep", "recess_sum", "through")
-    }
+        for name in (
+            "n", "fh", "fv", "surface", "shallow", "deep", "recess_sum", "through", "jamb"
+        )
+    }  # fmt: skip
+    # Each face's normal in the aligned frame: a ray ending on a face across a wall
+    # plane (a reveal, sill or jamb) crossed that plane where it is open.
+    fv_ = np.asarray(caster.vertices, float)[np.asarray(caster.faces)]
+    face_n = np.cross(fv_[:, 1] - fv_[:, 0], fv_[:, 2] - fv_[:, 0])
+    face_n = rotate(
+        face_n / np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-30), rotation
+    )
     ray_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
     for fi, frame in enumerate(frames):
         k = frame.intrinsics
@@ -306,9 +322,11 @@ def accumulate_frames(
             hits = caster.intersect(frame.center, rotate(d_cam, r_mesh))
             t_hit = np.where(hits.hit, hits.t, np.inf)
             t_sub = t_hit[sub_idx]
+            f_sub = np.where(hits.hit, hits.face, -1)[sub_idx]
         else:
             hits = caster.intersect(frame.center, rotate(d_cam[sub_idx], r_mesh))
             t_sub = np.where(hits.hit, hits.t, np.inf)
+            f_sub = np.where(hits.hit, hits.face, -1)
         d_sub = d_al[sub_idx]
 
         # --- edges on the wall surfaces the pixels see -------------------------------------
@@ -356,6 +374,9 @@ def accumulate_frames(
             rec = (g > surface_tol) & (g <= recess_max)
             acc["surface"].append((flat[on], None))
             acc["shallow"].append((flat[rec & (g <= deep_min)], None))
+            fk = f_sub[idx][keep][ok]
+            across = (fk >= 0) & (np.abs(face_n[np.maximum(fk, 0), :2] @ nin[wk]) < 0.5)
+            acc["jamb"].append((flat[rec & (g <= deep_min) & across], None))
             acc["deep"].append((flat[rec & (g > deep_min)], None))
             acc["recess_sum"].append((flat[rec], g[rec]))
             acc["through"].append((flat[g > recess_max], None))
