@@ -181,22 +181,21 @@ def test_vanishing_point_of_the_vertical_axis_for_a_level_camera():
     assert vp[0, 2] != 0 and vp[0, :2] / vp[0, 2] == pytest.approx([32, 24])  # looking along x
 
 
-def test_rays_through_a_window_hole_mark_it_open():
-    room = RoomSpec(
-        np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
-        0.0,
-        2.5,
-        [Opening("window", 0, 1.0, 2.2, 0.9, 2.0, 0.2)],
-    )
-    parts, _ = build_room(room, 0.1, MATERIALS, baseboard=None)
+def _window_room(window: Opening, h: float) -> tuple[trimesh.Trimesh, list[dict]]:
+    """A 5 x 4 m room with one window on wall 0: its mesh (spacing ``h``) and walls."""
+    room = RoomSpec(np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float), 0.0, 2.5, [window])
+    parts, _ = build_room(room, h, MATERIALS, baseboard=None)
     pc = Piece.concat([p.piece for p in parts])
-    mesh = trimesh.Trimesh(pc.vertices, pc.faces, process=False)
-    intr = Intrinsics.from_fov(64, 48, 70.0)
-    lay = room_layout(room, None)
     walls = [
         {**w, "length": float(np.linalg.norm(np.subtract(w["end"], w["start"])))}
-        for w in lay["walls"]
+        for w in room_layout(room, None)["walls"]
     ]
+    return trimesh.Trimesh(pc.vertices, pc.faces, process=False), walls
+
+
+def test_rays_through_a_window_hole_mark_it_open():
+    mesh, walls = _window_room(Opening("window", 0, 1.0, 2.2, 0.9, 2.0, 0.2), 0.1)
+    intr = Intrinsics.from_fov(64, 48, 70.0)
     g = WallGrids.empty(walls, 0.1, 0.0, 2.5)
     frames = [
         Frame(i, None, look_at([1.6 + 0.3 * i, 2.5, 1.4], [1.6, 0.0, 1.4]), intr) for i in range(3)
@@ -236,20 +235,8 @@ def test_rays_that_meet_a_window_s_reveal_count_it_open():
     # right edge their rays cross the wall plane inside the opening and meet the reveal
     # a few centimetres behind it. Counted as shallow recesses (as before session 27)
     # those rays shrank the window by 10 cm; counted as open (``jamb``), it is whole.
-    room = RoomSpec(
-        np.array([[0, 0], [5, 0], [5, 4], [0, 4]], float),
-        0.0,
-        2.5,
-        [Opening("window", 0, 1.6, 2.8, 0.9, 2.0, 0.2)],
-    )
-    parts, _ = build_room(room, 0.05, MATERIALS, baseboard=None)
-    pc = Piece.concat([p.piece for p in parts])
-    mesh = trimesh.Trimesh(pc.vertices, pc.faces, process=False)
+    mesh, walls = _window_room(Opening("window", 0, 1.6, 2.8, 0.9, 2.0, 0.2), 0.05)
     intr = Intrinsics.from_fov(160, 120, 60.0)
-    walls = [
-        {**w, "length": float(np.linalg.norm(np.subtract(w["end"], w["start"])))}
-        for w in room_layout(room, None)["walls"]
-    ]
     eyes = [[0.2 + 0.1 * i, 1.0 + 0.2 * (i % 3), 1.0 + 0.5 * (i % 2)] for i in range(8)]
     frames = [Frame(i, None, look_at(e, [2.2, 0.0, 1.45]), intr) for i, e in enumerate(eyes)]
     g = WallGrids.empty(walls, 0.02, 0.0, 2.5)
