@@ -288,11 +288,7 @@ def accumulate_frames(
     }  # fmt: skip
     # Each face's normal in the aligned frame: a ray ending on a face across a wall
     # plane (a reveal, sill or jamb) crossed that plane where it is open.
-    fv_ = np.asarray(caster.vertices, float)[np.asarray(caster.faces)]
-    face_n = np.cross(fv_[:, 1] - fv_[:, 0], fv_[:, 2] - fv_[:, 0])
-    face_n = rotate(
-        face_n / np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-30), rotation
-    )
+    face_n = rotate(caster.face_normals, rotation)
     ray_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
     for fi, frame in enumerate(frames):
         k = frame.intrinsics
