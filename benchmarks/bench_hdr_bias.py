@@ -39,7 +39,9 @@ per channel, over the vertices of a band of true luminance; emitters (true label
   (7) with ``--clip-spp 16,64``, renders of those views at each sample count clipped at
   the white level against the same unclipped, on the pixels the reference render
   expects under half white: the light the generator's camera loses to the path
-  tracer's noise at that sample count (``reroom synth --spp``).
+  tracer's noise at that sample count (``reroom synth --spp``);
+  (8) with ``--cells ceiling,floor``, maps of each surface over 0.5 m cells of the plan:
+  HDR over truth, blue over red, and the truth's own relative standard error in blue.
 """
 
 from __future__ import annotations
@@ -104,6 +106,11 @@ def main() -> None:
     ap.add_argument("--sampling", default="box3", help="comma-separated ObserveOptions.sampling")
     ap.add_argument("--render-frames", default="", help="comma-separated frame indices for (6)")
     ap.add_argument("--render-spp", type=int, default=256)
+    ap.add_argument(
+        "--cells",
+        default="",
+        help="comma-separated surfaces (e.g. ceiling,floor) for (8): maps over 0.5 m cells",
+    )
     ap.add_argument(
         "--clip-spp",
         default="",
@@ -240,10 +247,51 @@ def main() -> None:
                     f"| {a:g}-{b:g} | {int(s.sum())} | {_ratio(mean, tru, s)} | {_ratio(med, tru, s)} |"
                 )
 
+        if args.cells:
+            err = np.asarray(verts.vertex_attributes["radiance_stderr"], float)
+            cell_maps(est, tru, err, pos, label, base, args.cells.split(","))
+
     if args.render_frames:
         render_check(scan, scan_dir, obs, lut, t_true, tru, est, label, args)
     if args.render_frames and args.clip_spp:
         clip_check(scan, scan_dir, t_true, args)
+
+
+def cell_maps(est, tru, err, pos, label, base, surfaces: list[str], cell: float = 0.5) -> None:
+    """(8) Per ``cell`` x ``cell`` m of each surface's plan (rows from high y down, columns
+    from low x): HDR over truth, blue over red, as ratios of sums; and the truth's mean
+    relative standard error in blue (where the truth itself is noisy, e.g. light that
+    arrives by rare paths)."""
+    names = {v: k for k, v in LABELS.items()}
+    lo = pos[:, :2].min(axis=0)
+    ij = np.floor((pos[:, :2] - lo) / cell).astype(int)
+    shape = tuple(ij.max(axis=0) + 1)
+    for surface in surfaces:
+        sel = base & (label == names[surface])
+        e_sum = np.zeros((*shape, 3))
+        t_sum = np.zeros((*shape, 3))
+        rel = np.zeros(shape)
+        n = np.zeros(shape)
+        i, j = ij[sel, 0], ij[sel, 1]
+        np.add.at(e_sum, (i, j), est[sel])
+        np.add.at(t_sum, (i, j), tru[sel])
+        np.add.at(rel, (i, j), err[sel, 2] / np.maximum(tru[sel, 2], 1e-9))
+        np.add.at(n, (i, j), 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = e_sum / t_sum
+            tilt = r[..., 2] / r[..., 0]
+        print(
+            f"\n(8) {surface}, {cell} m cells from ({lo[0]:.1f}, {lo[1]:.1f}): HDR / truth, "
+            "blue over red | the truth's relative standard error in blue\n"
+        )
+        for jj in range(shape[1] - 1, -1, -1):
+            left = " ".join(
+                f"{x:4.2f}" if n[ii, jj] else "   -" for ii, x in enumerate(tilt[:, jj])
+            )
+            right = " ".join(
+                f"{rel[ii, jj] / n[ii, jj]:4.2f}" if n[ii, jj] else "   -" for ii in range(shape[0])
+            )
+            print(f"    y {lo[1] + jj * cell:4.1f}  {left}  |  {right}")
 
 
 def render_check(scan, scan_dir: Path, obs, lut, t_true, tru, est, label, args) -> None:
