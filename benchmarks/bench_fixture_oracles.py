@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/bench_fixture_oracles.py trough-variants SCAN
     python benchmarks/bench_fixture_oracles.py true-fixture SCAN --work DIR
+    python benchmarks/bench_fixture_oracles.py true-depth SCAN --work DIR
     python benchmarks/bench_fixture_oracles.py shade-open SCAN [--light point0]
     python benchmarks/bench_fixture_oracles.py shade-frustum SCAN --work DIR --bottom Z,R
     python benchmarks/bench_fixture_oracles.py shade-forced SCAN --work DIR --light NAME \
@@ -20,6 +21,9 @@ Usage::
 * ``true-fixture``: ``reroom invert`` with the true fixture's parts in place of the
   photos' trough (the photos' axis and radius kept), evaluated: what a perfect trough
   would give the tube.
+* ``true-depth``: ``reroom invert`` with the photos' trough at the true baffles' depth
+  and half gap (its axis, radius and top the photos'), evaluated: what the two numbers
+  :func:`reroom.invert.line_photos.trough_edges` fits would give if they were exact.
 * ``shade-open``: the scanned shade's open fraction (:mod:`reroom.invert.point_fixture`)
   of a point light against the true fixture's, bin by bin.
 * ``shade-frustum``: ``reroom invert`` with the shaded bulb's prior taken from a
@@ -189,6 +193,26 @@ def true_fixture(scan: Path, work: Path) -> None:
     _report(run, run / "invert")
 
 
+def true_depth(scan: Path, work: Path) -> None:
+    """``reroom invert`` with the photos' trough set to the true baffles' depth and half
+    gap (its axis, radius and top the photos'): what the trough's two fitted numbers
+    would give if they were exact."""
+    import reroom.invert.line_photos as line_photos
+    from reroom.invert.line_photos import Trough
+
+    truth = _true(scan, "line")
+    ceiling = max(r["ceiling_z"] for r in json.loads(
+        (scan / "ground_truth" / "ground_truth.json").read_text())["layout"]["rooms"])  # fmt: skip
+    axis_z = 0.5 * (truth["p0"][2] + truth["p1"][2])
+    depth = truth["baffles"]["bottom_below_ceiling"] - (ceiling - axis_z)
+    half = float(truth["baffles"]["half_gap"])
+    print(f"true trough: half gap {1000 * half:.0f} mm, depth {1000 * depth:.0f} mm\n")
+    line_photos.trough_edges = lambda *a, **k: Trough((half, half), depth, ["truth"], "truth")
+    run = _linked_copy(scan, work)
+    pipeline.run_invert(run, run / "invert")
+    _report(run, run / "invert")
+
+
 def shade_open(scan: Path, name: str) -> None:
     light = [x for x in _lights(scan) if x["name"] == name][0]
     g = _geometry(light)
@@ -267,7 +291,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "what",
-        choices=["trough-variants", "true-fixture", "shade-open", "shade-frustum", "shade-forced"],
+        choices=[
+            "trough-variants",
+            "true-fixture",
+            "true-depth",
+            "shade-open",
+            "shade-frustum",
+            "shade-forced",
+        ],
     )
     ap.add_argument("scan", type=Path)
     ap.add_argument("--work", type=Path, help="folder of the linked copy (invert variants)")
@@ -280,12 +311,17 @@ def main(argv: list[str] | None = None) -> int:
         '{"window_view_hdri": "/tmp/view.exr"}',
     )
     args = ap.parse_args(argv)
-    if args.what in ("true-fixture", "shade-frustum", "shade-forced") and args.work is None:
+    if (
+        args.what in ("true-fixture", "true-depth", "shade-frustum", "shade-forced")
+        and args.work is None
+    ):
         ap.error(f"{args.what} needs --work DIR")
     if args.what == "trough-variants":
         trough_variants(args.scan)
     elif args.what == "true-fixture":
         true_fixture(args.scan, args.work)
+    elif args.what == "true-depth":
+        true_depth(args.scan, args.work)
     elif args.what == "shade-open":
         shade_open(args.scan, args.light)
     elif args.what == "shade-forced":
