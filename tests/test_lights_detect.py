@@ -32,8 +32,8 @@ from reroom.lights import (
 from reroom.lights.candidates import bright_components, describe_component, mesh_adjacency
 from reroom.lights.consistency import view_consistency
 from reroom.lights.evaluate import rectangle_iou
-from reroom.lights.lightset import Light
-from reroom.lights.lines import merge_lines
+from reroom.lights.lightset import Light, Rejected
+from reroom.lights.lines import fixture_from_pieces, merge_lines
 from reroom.lights.room import RoomModel
 from reroom.lights.synthetic import HIGHLIGHT_SCENE, highlight_scan
 
@@ -385,6 +385,58 @@ def test_collinear_line_pieces_are_joined() -> None:
     g = joined[0][0].geometry
     assert np.allclose(sorted([g["p0"][0], g["p1"][0]]), [0.0, 1.2])
     assert "2 collinear pieces joined" in joined[0][0].reason
+
+
+def _strip(x0: float, x1: float, y: float, z: float, n: int, down: bool) -> tuple:
+    """A small rejected piece near the ceiling: the lower half of a 1.6 cm tube along x
+    (``down``) or a vertical lit face 3 cm high, with ``n`` vertices."""
+    from scipy.spatial import cKDTree
+
+    x = np.linspace(x0, x1, n)
+    if down:  # rings of 5 vertices on the lower half
+        x = np.repeat(np.linspace(x0, x1, n // 5), 5)
+        a = np.tile(np.linspace(np.pi, 2 * np.pi, 5), n // 5)
+        v = np.stack([x, y + 0.016 * np.cos(a), z + 0.016 * np.sin(a)], 1)
+        normals = np.stack([0 * a, np.cos(a), np.sin(a)], 1)
+    else:  # pairs of vertices, 3 cm apart in height
+        x = np.repeat(np.linspace(x0, x1, n // 2), 2)
+        v = np.stack([x, np.full(n, y), z + 0.015 * (-1.0) ** np.arange(n)], 1)
+        normals = np.tile([0.0, -np.sign(y), 0.0], (n, 1))
+    comp = describe_component(
+        np.arange(n), v, normals, np.full(n, 1e-4), np.ones((n, 3)), np.ones(n),
+        np.ones(n, bool), cKDTree(v), 0.05,
+    )  # fmt: skip
+    ev = {"vertices": n, "normal_up": float(comp.normal[2]), "mean_luminance": 1.0}
+    return Rejected(f"piece{x0}{y}", "component", f"rejected: {n} vertices < 50", ev), comp, ev
+
+
+def test_a_tube_seen_in_pieces_beside_its_lit_baffles_is_one_line() -> None:
+    """`lshape`'s 24-frame tube: a 40-vertex piece of it and two lit baffle faces 7 cm
+    to either side, each under 50 vertices, together one line light with the ends of
+    the fixture and the axis of the tube."""
+    up = np.array([0.0, 0.0, 1.0])
+    tube = _strip(0.6, 1.0, 0.0, 2.5, 40, down=True)
+    left = _strip(0.1, 1.1, 0.07, 2.5, 14, down=False)
+    right = _strip(0.05, 0.35, -0.07, 2.5, 6, down=False)
+    far = _strip(3.0, 3.5, 2.0, 2.5, 30, down=True)  # elsewhere, alone: too few vertices
+    pieces = [tube, left, right, far]
+    rejected = [p[0] for p in pieces]
+    (found,) = fixture_from_pieces(pieces, [], up, rejected, 50, 0.3)
+    light, members = found
+    g = light.geometry
+    assert sorted([g["p0"][0], g["p1"][0]]) == pytest.approx([0.05, 1.1], abs=2e-3)
+    for end in ("p0", "p1"):
+        assert np.asarray(g[end])[1:] == pytest.approx([0.0, 2.5], abs=2e-3)
+    assert g["radius"] == pytest.approx(0.016, rel=0.2)
+    assert len(members) == 60 and light.evidence["pieces"] == 3
+    assert "3 pieces side by side" in light.reason
+    assert rejected == [far[0]]
+    # No downward-facing piece (lit faces alone), too few vertices, or a line light
+    # already there: nothing new.
+    assert fixture_from_pieces([left, right], [], up, [left[0], right[0]], 10, 0.3) == []
+    assert fixture_from_pieces(pieces[:3], [], up, [p[0] for p in pieces[:3]], 61, 0.3) == []
+    line = Light("line0", "line", "detected", {"p0": [0.0, 0, 2.5], "p1": [1.2, 0, 2.5]}, {}, "")
+    assert fixture_from_pieces(pieces[:3], [(line, np.arange(3))], up, [], 50, 0.3) == []
 
 
 def test_layout_window_rectangle() -> None:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 import warnings
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +56,7 @@ from reroom.lights.consistency import (
 )
 from reroom.lights.decide import decide, evidence, make_light, window_light
 from reroom.lights.lightset import Light, LightsError, LightSet, Rejected
-from reroom.lights.lines import absorb_pieces, merge_lines
+from reroom.lights.lines import absorb_pieces, fixture_from_pieces, merge_lines
 from reroom.lights.pools import MeshData, find_pools
 from reroom.lights.room import (
     CEILING,
@@ -313,6 +313,8 @@ def detect_lights(
     window_parts: dict[int, list[np.ndarray]] = {}  # layout window -> vertices of its glass
     specks = 0
     small_near_ceiling: list[tuple[Rejected, Component, dict]] = []
+    line_pieces: list[tuple[Rejected, Component, dict]] = []
+    piece_opt = replace(opt, min_vertices=SPECK, line_min_length=0.0)
 
     for k, comp in enumerate(comps):
         if len(comp.vertices) < min(SPECK, opt.min_vertices):
@@ -331,6 +333,9 @@ def detect_lights(
             rejected.append(Rejected(name, "component", verdict[1], ev))
             if verdict[2] == "small" and ev["top_below_ceiling_m"] <= opt.ceiling_zone:
                 small_near_ceiling.append((rejected[-1], comp, ev))
+                # Would it be a line but for its size (and length)? A piece of a tube.
+                if decide(comp, dict(ev), piece_opt, room, windows, threshold)[2] == "line":
+                    line_pieces.append((rejected[-1], comp, ev))
         elif verdict[0] == "window-part":
             window_parts.setdefault(verdict[2], []).append(comp.vertices)
             rejected.append(Rejected(name, "component", verdict[1], ev))
@@ -351,6 +356,10 @@ def detect_lights(
     surfaces = [(x, v) for x, v in kept if x.type in ("area", "window")]
     lines = merge_lines([(x, v) for x, v in kept if x.type == "line"])
     lines = absorb_pieces(lines, small_near_ceiling, up, rejected)
+    line_pieces = [p for p in line_pieces if any(p[0] is r for r in rejected)]
+    lines += fixture_from_pieces(
+        line_pieces, lines, up, rejected, opt.min_vertices, opt.line_min_length
+    )
     points = [(x, v) for x, v in kept if x.type == "point"]
     layout_windows = [
         (window_light(w, win), np.concatenate(window_parts.get(w, [np.zeros(0, np.int64)])))

@@ -8,7 +8,7 @@ from reroom.lights.candidates import Component
 from reroom.lights.decide import make_light, radiance_text
 from reroom.lights.lightset import Light, Rejected
 
-__all__ = ["absorb_pieces", "merge_lines"]
+__all__ = ["absorb_pieces", "fixture_from_pieces", "merge_lines"]
 
 
 def merge_lines(lines: list[tuple[Light, np.ndarray]]) -> list[tuple[Light, np.ndarray]]:
@@ -53,6 +53,124 @@ def absorb_pieces(
                 rejected.remove(rej)
                 break
     return out
+
+
+def fixture_from_pieces(
+    pieces: list[tuple[Rejected, Component, dict]],
+    lines: list[tuple[Light, np.ndarray]],
+    up: np.ndarray,
+    rejected: list[Rejected],
+    min_vertices: int,
+    min_length: float,
+    width: float = 0.15,
+) -> list[tuple[Light, np.ndarray]]:
+    """New line lights from small, thin pieces near the ceiling that lie side by side.
+
+    On a scan of few, small frames a tube between baffles is under two pixels wide:
+    only part of it comes out bright, and the baffles' inner faces, lit by it, come
+    out as separate strips a few centimetres to either side (`lshape`'s 24-frame
+    scan: a 40-vertex piece of the 1.2 m tube and two lit faces of 14 and 6 vertices,
+    6-7 cm off its axis, each under ``min_vertices``). Pieces that are each line-shaped
+    (the caller's test: every rule but the size), parallel (within ~14 degrees), within
+    ``width`` of each other across their axes and at most half a metre apart along
+    them form one fixture. A fixture becomes a line light when it has, together,
+    ``min_vertices`` vertices and ``min_length`` of length, and one of its pieces faces
+    down (the tube itself, seen from below: lit faces alone may be a slot lit from
+    elsewhere). The tube's axis is that of its downward-facing pieces, its ends the
+    fixture's (a baffle is lit where the tube is). Fixtures beside a line light found
+    already are that light's fitting and are left rejected.
+    """
+    n = len(pieces)
+    geo = [make_light("line", comp, ev, up, "").geometry for _, comp, ev in pieces]
+    parent = list(range(n))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            if _side_by_side(geo[i], geo[j], width):
+                parent[find(i)] = find(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(find(i), []).append(i)
+    out: list[tuple[Light, np.ndarray]] = []
+    for members in groups.values():
+        down = [i for i in members if pieces[i][2]["normal_up"] < -0.5]
+        n_vert = sum(pieces[i][2]["vertices"] for i in members)
+        if not down or n_vert < min_vertices:
+            continue
+        if any(_side_by_side(x.geometry, geo[i], width) for x, _ in lines for i in members):
+            continue
+        light = _fixture_light([pieces[i] for i in members], [geo[i] for i in members], up)
+        if light.evidence["size_m"][0] < min_length:
+            continue
+        for i in members:
+            rejected.remove(pieces[i][0])
+        out.append((light, np.concatenate([pieces[i][1].vertices for i in members])))
+    return out
+
+
+def _side_by_side(ga: dict, gb: dict, width: float) -> bool:
+    """Two segments parallel within ~14 degrees, within ``width`` across and at most
+    0.5 m apart along their axes."""
+    a0, a1 = np.asarray(ga["p0"], float), np.asarray(ga["p1"], float)
+    b0, b1 = np.asarray(gb["p0"], float), np.asarray(gb["p1"], float)
+    da = (a1 - a0) / max(np.linalg.norm(a1 - a0), 1e-12)
+    db = (b1 - b0) / max(np.linalg.norm(b1 - b0), 1e-12)
+    if abs(da @ db) < 0.97:
+        return False
+    off = (b0 + b1) / 2 - a0
+    if np.linalg.norm(off - (off @ da) * da) > width:
+        return False
+    tb = np.sort([(b0 - a0) @ da, (b1 - a0) @ da])
+    return max(tb[0] - (a1 - a0) @ da, -tb[1]) <= 0.5
+
+
+def _fixture_light(
+    pieces: list[tuple[Rejected, Component, dict]], geo: list[dict], up: np.ndarray
+) -> Light:
+    """The line light of one fixture's pieces: the axis through its downward-facing
+    pieces (vertex-weighted) along all pieces' direction, the radius from the former,
+    the ends from all of them."""
+    w = np.array([ev["vertices"] if ev["normal_up"] < -0.5 else 0 for _, _, ev in pieces], float)
+    lead = int(np.argmax(w))
+    # The direction from every piece, by squared length: the long lit faces hold it
+    # better than a short piece of the tube.
+    seg = np.array([np.asarray(g["p1"], float) - np.asarray(g["p0"], float) for g in geo])
+    seg *= np.where(seg @ seg[lead] < 0, -1.0, 1.0)[:, None]
+    d = (seg * np.linalg.norm(seg, axis=1)[:, None]).sum(0)
+    d /= max(np.linalg.norm(d), 1e-12)
+    mids = np.array([(np.asarray(g["p0"], float) + np.asarray(g["p1"], float)) / 2 for g in geo])
+    middle = (w[:, None] * mids).sum(0) / w.sum()
+    ends = np.array([[(np.asarray(g[k], float) - middle) @ d for k in ("p0", "p1")] for g in geo])
+    lo, hi = float(ends.min()), float(ends.max())
+    radius = float((w * [g["radius"] for g in geo]).sum() / w.sum())
+    perp = up - (up @ d) * d
+    perp /= max(np.linalg.norm(perp), 1e-12)
+    evs = [ev for _, _, ev in pieces]
+    n = int(sum(ev["vertices"] for ev in evs))
+    evidence = {
+        **evs[lead],
+        "vertices": n,
+        "mean_luminance": float(sum(ev["mean_luminance"] * ev["vertices"] for ev in evs) / n),
+        "pieces": len(pieces),
+        "size_m": [hi - lo, 2 * radius],
+        "centroid": middle + (lo + hi) / 2 * d,
+        "frames_seeing": max(ev.get("frames_seeing", 0) for ev in evs),
+        "frames_bright": max(ev.get("frames_bright", 0) for ev in evs),
+    }
+    geometry = {"p0": middle + lo * d, "p1": middle + hi * d, "d_perp": perp, "radius": radius}
+    n_down = int((w > 0).sum())
+    reason = (
+        f"kept: line light, {hi - lo:.2f} m long, from {len(pieces)} pieces side by side, "
+        f"each under the size limit ({n_down} facing down: the tube; the others lit faces "
+        f"of its fitting), {radiance_text(evs[lead])}"
+    )
+    return Light("", "line", "detected", geometry, evidence, reason)
 
 
 def _join(a: tuple[Light, np.ndarray], b: tuple[Light, np.ndarray]) -> tuple | None:
