@@ -100,10 +100,17 @@ def evaluate(scan: Path, invert_dir: Path) -> None:
         pe = light.get("power_relative_error")
         ee = light.get("effective_power_relative_error")
         l2 = light.get("distribution_relative_l2")
+        l2_text = f"{100 * l2:.1f} %" if l2 is not None else "-"
+        coarse = light.get("distribution_relative_l2_solved_bins")
+        if coarse is not None:  # a point light split after the solve: at the solve's bins too
+            dist = light["distribution"]
+            l2_text = (
+                f"{100 * coarse:.1f} % at {dist['solved_bins']} bins, {l2_text} at "
+                f"{len(dist['true_profile'])}"
+            )
         print(
             f"| {light['name']} | {light.get('truth')} | {light.get('distance_m', 0):.3f} m | "
-            f"{_pct(pe) if pe else '-'} | {_pct(ee) if ee else '-'} | "
-            f"{f'{100 * l2:.1f} %' if l2 is not None else '-'} |"
+            f"{_pct(pe) if pe else '-'} | {_pct(ee) if ee else '-'} | {l2_text} |"
         )
 
 

@@ -45,6 +45,9 @@ The only code of :mod:`reroom.invert` that reads ``ground_truth/``. What is comp
   transfer at least 1 % of the largest bin's); windows over the cells the window shows.
   Line lights also get ``relative_l2_theta``: estimate and truth each reduced to
   ``theta`` (the power-weighted mean over ``phi``), comparable across ``phi_bins``.
+  A point light whose bins were split after the solve (``split_from_bins``,
+  :mod:`reroom.invert.fine_profiles`) also gets ``relative_l2_solved_bins``: the
+  exported profile's flux per bin of the solve against the truth at those bins.
 
 :func:`run_invert_true_radiance` is an **evaluation-only shortcut**: it runs the
 pipeline with the true per-vertex radiance instead of the HDR mesh's, to measure the
@@ -67,6 +70,7 @@ from reroom.invert.export import (
     line_light_power,
     line_profile_grid,
 )
+from reroom.invert.fine_profiles import coarsen
 from reroom.invert.line_fixture import line_open_fraction
 from reroom.invert.sun import fold_sun_into_cells
 from reroom.io.mesh import read_ply
@@ -580,6 +584,20 @@ def _compare_distribution(
         truth = true_point_profile(t, scene_dir, np.asarray(g["axis"], float), len(profile))
         effective = inclination_power(truth)
         dist.update(basis="inclination")
+        solved_bins = e["distribution"].get("split_from_bins")
+        if solved_bins is not None and solved_bins < len(profile):
+            # Solved at fewer bins, then split (reroom.invert.fine_profiles): also compare
+            # at the bins of the solve, the thesis's basis, each bin's flux as exported.
+            coarse = profile
+            while len(coarse) > solved_bins:
+                coarse = coarsen(coarse)
+            t_coarse = true_point_profile(t, scene_dir, np.asarray(g["axis"], float), solved_bins)
+            dist.update(
+                solved_bins=int(solved_bins),
+                relative_l2_solved_bins=distribution_relative_l2(
+                    coarse[:, None] * color[None, :], t_coarse, k
+                ),
+            )
     else:
         grid, fold = line_profile_grid(e["distribution"])
         bins, phi_bins = grid.shape
@@ -722,6 +740,8 @@ def evaluate_invert(scan_dir: str | Path, invert_dir: str | Path | None = None) 
             entry["distribution"] = dist
             entry["distribution_relative_l2"] = dist["relative_l2"]
             entry["distribution_relative_l2_seen"] = dist.get("relative_l2_seen")
+            if "relative_l2_solved_bins" in dist:
+                entry["distribution_relative_l2_solved_bins"] = dist["relative_l2_solved_bins"]
             tp = None
             if t["type"] == "area":
                 c = np.asarray(t["corners"], float)

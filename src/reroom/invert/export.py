@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 
 from reroom.invert.basis import CubemapBasis, LineBasis
+from reroom.invert.fine_profiles import apply_shares, coarsen
 from reroom.invert.sun import add_sun_to_map, sun_power
 from reroom.io.atomic import atomic_path, atomic_write_json
 from reroom.io.ies import IESProfile, write_ies
@@ -552,11 +553,19 @@ def light_entries(
         elif block.kind == "point":
             solved = np.asarray(result.solve.profiles[block.name], np.float64)
             support = info.get("support")
-            profile = (
-                solved
-                if support is None
-                else fill_poorly_seen(solved, np.asarray(support), min_bin_support)
-            )
+            if support is not None and "split_shares" in info:
+                # Filled at the bins it was solved at (a bin's support is the sum of its
+                # halves'), then split as fitted: the power stays the solve's.
+                coarse, sup = solved, np.asarray(support, float)
+                for _ in info["split_shares"]:
+                    coarse, sup = coarsen(coarse), sup[0::2] + sup[1::2]
+                profile = fill_poorly_seen(coarse, sup, min_bin_support)
+                for halves in info["split_shares"]:
+                    profile = apply_shares(profile, halves)
+            elif support is not None:
+                profile = fill_poorly_seen(solved, np.asarray(support), min_bin_support)
+            else:
+                profile = solved
             color = result.solve.colors[block.name]
             e["color"] = color.tolist()
             e["distribution"] = {
@@ -568,6 +577,13 @@ def light_entries(
             }
             if "shadow_clearance" in info:
                 e["distribution"]["shadow_clearance"] = float(info["shadow_clearance"])
+            if "split_from_bins" in info:
+                # Solved at these bins, then each split in two, once per entry of the
+                # shares (reroom.invert.fine_profiles).
+                e["distribution"]["split_from_bins"] = int(info["split_from_bins"])
+                e["distribution"]["split_shares"] = [
+                    [float(x) for x in halves] for halves in info["split_shares"]
+                ]
             if "open_fraction" in info:
                 # The shape prior of a bulb in a shade: the part of each band it leaves open.
                 e["distribution"]["open_fraction"] = [float(x) for x in info["open_fraction"]]

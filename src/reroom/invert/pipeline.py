@@ -70,6 +70,12 @@ class InvertOptions:
     bins : int
         Inclination bins of point lights, and ``theta`` bins (around the line) of line
         lights (thesis: 32).
+    point_splits : int
+        After the solve, split each point light's bins in two this many times, the flux
+        of each bin kept and its share between the halves fitted to the receivers with
+        everything else held (:mod:`reroom.invert.fine_profiles`): the exported profile
+        then has ``bins * 2 ** point_splits`` bins, sharp enough for a downlight's
+        scallops, while every power and albedo is the solve's. 0: the solve's bins.
     line_phi_bins : int
         ``phi`` bins of line lights (angle out of the plane perpendicular to the line,
         :class:`~reroom.invert.basis.LineBasis`): the profile is ``i(theta, phi)
@@ -277,6 +283,7 @@ class InvertOptions:
 
     cubemap_n: int = 4
     bins: int = 32
+    point_splits: int = 1
     line_phi_bins: int = 3
     line_phi_fold: bool = True
     line_phi_smooth: float = 1e5
@@ -1127,6 +1134,15 @@ def run_invert(
         timings["refine_points"] = time.perf_counter() - t
     if any(b.kind == "sun" for b in blocks):
         result = _sun_from_its_patch(problem, result, options, notes, progress)
+    if options.point_splits > 0 and any(b.kind == "point" for b in blocks):
+        t = time.perf_counter()
+        for _ in range(options.point_splits):
+            _split_point_bins(
+                caster, p_recv, n_recv, rows, blocks, columns, info, problem, result, options
+            )  # fmt: skip
+            transfer = sp.csr_matrix(np.concatenate(columns, axis=1))
+            problem = replace(problem, transfer=transfer[rows], lights=blocks)
+        timings["point_splits"] = time.perf_counter() - t
     # How much data each basis element had: the summed transfer over the clustered
     # receivers (green). Point and line bins that almost no receiver sees are barely
     # constrained by the solve; export fills them from their well-seen neighbours.
@@ -1390,6 +1406,49 @@ def _sun_from_its_patch(problem, result, options, notes: list[str], progress=Non
         again.intensities[name] = level[None, :]
         again.light_share[name] = result.light_share.get(name, 0.0)
     return again
+
+
+def _split_point_bins(
+    caster, p_recv, n_recv, rows, blocks, columns, info, problem, result, options
+) -> None:
+    """Each point light's profile at twice its bins (:func:`fine_profiles.split_bins`),
+    in place: its block, transfer columns and solved intensities; its info keeps the
+    bins it was solved at and each halving's shares."""
+    from reroom.invert.fine_profiles import split_bins
+
+    used = result.cluster_used[problem.cluster]
+    gain = np.nan_to_num(result.albedo[problem.cluster]) / np.pi
+    model = gain * (problem.indirect + problem.transfer @ result.intensity_vector(blocks))
+    weights = np.where(used[:, None] & np.isfinite(result.weights), result.weights, 0.0)
+    start = 0
+    for k, block in enumerate(blocks):
+        cols = slice(start, start + block.size)
+        start += block.size
+        if block.kind != "point":
+            continue
+        g = info[k]["geometry"]
+        basis = InclinationBasis(2 * block.size)
+        fine = point_light_transfer(
+            caster, p_recv, n_recv, np.asarray(g["position"], float),
+            np.asarray(g["axis"], float), basis, clearance=options.point_clearance,
+            fixture=options.fixture_margin,
+        )  # fmt: skip
+        coarse = result.intensities[block.name]
+        own = gain * (problem.transfer[:, cols] @ coarse)
+        target = problem.radiance - model + own
+        intens, share = split_bins(coarse, fine[rows], target, gain, weights)
+        columns[k] = fine
+        blocks[k] = LightBlock(
+            block.name, "point", basis.size, True,
+            np.stack([np.arange(basis.size - 1), np.arange(1, basis.size)], axis=1),
+        )  # fmt: skip
+        result.intensities[block.name] = intens
+        color = result.colors[block.name]
+        result.profiles[block.name] = intens @ color / max(float(color @ color), 1e-300)
+        info[k].setdefault("split_from_bins", block.size)
+        info[k]["split_shares"] = [*info[k].get("split_shares", []), share.tolist()]
+        if "open_fraction" in info[k]:  # the shade prior's, per solved bin: each half
+            info[k]["open_fraction"] = np.repeat(info[k]["open_fraction"], 2).tolist()
 
 
 def _mounted_surfaces(light_list, notes: list[str]) -> dict[str, float]:
