@@ -114,20 +114,30 @@ def fixture_from_pieces(
     return out
 
 
+class _Pair:
+    """How segment ``b`` lies against segment ``a``: the cosine of the angle between
+    them, the distance of ``b``'s middle from ``a``'s axis, ``b``'s ends along that axis
+    (``a`` spans ``0..length``) and the gap between the two along it (< 0: overlap)."""
+
+    def __init__(self, ga: dict, gb: dict) -> None:
+        self.a0 = np.asarray(ga["p0"], float)
+        a1 = np.asarray(ga["p1"], float)
+        b0, b1 = np.asarray(gb["p0"], float), np.asarray(gb["p1"], float)
+        self.da = (a1 - self.a0) / max(np.linalg.norm(a1 - self.a0), 1e-12)
+        db = (b1 - b0) / max(np.linalg.norm(b1 - b0), 1e-12)
+        self.cos = abs(float(self.da @ db))
+        off = (b0 + b1) / 2 - self.a0
+        self.across = float(np.linalg.norm(off - (off @ self.da) * self.da))
+        self.length = float((a1 - self.a0) @ self.da)
+        self.tb = np.sort([(b0 - self.a0) @ self.da, (b1 - self.a0) @ self.da])
+        self.gap = float(max(self.tb[0] - self.length, -self.tb[1]))
+
+
 def _side_by_side(ga: dict, gb: dict, width: float) -> bool:
     """Two segments parallel within ~14 degrees, within ``width`` across and at most
     0.5 m apart along their axes."""
-    a0, a1 = np.asarray(ga["p0"], float), np.asarray(ga["p1"], float)
-    b0, b1 = np.asarray(gb["p0"], float), np.asarray(gb["p1"], float)
-    da = (a1 - a0) / max(np.linalg.norm(a1 - a0), 1e-12)
-    db = (b1 - b0) / max(np.linalg.norm(b1 - b0), 1e-12)
-    if abs(da @ db) < 0.97:
-        return False
-    off = (b0 + b1) / 2 - a0
-    if np.linalg.norm(off - (off @ da) * da) > width:
-        return False
-    tb = np.sort([(b0 - a0) @ da, (b1 - a0) @ da])
-    return max(tb[0] - (a1 - a0) @ da, -tb[1]) <= 0.5
+    pair = _Pair(ga, gb)
+    return pair.cos >= 0.97 and pair.across <= width and pair.gap <= 0.5
 
 
 def _fixture_light(
@@ -175,22 +185,11 @@ def _fixture_light(
 
 def _join(a: tuple[Light, np.ndarray], b: tuple[Light, np.ndarray]) -> tuple | None:
     ga, gb = a[0].geometry, b[0].geometry
-    a0, a1 = np.asarray(ga["p0"], float), np.asarray(ga["p1"], float)
-    b0, b1 = np.asarray(gb["p0"], float), np.asarray(gb["p1"], float)
-    da = (a1 - a0) / max(np.linalg.norm(a1 - a0), 1e-12)
-    db = (b1 - b0) / max(np.linalg.norm(b1 - b0), 1e-12)
-    if abs(da @ db) < 0.99:
+    pair = _Pair(ga, gb)
+    if pair.cos < 0.99 or pair.across > 0.05 or pair.gap > 0.5:
         return None
-    mid_b = (b0 + b1) / 2
-    off = mid_b - a0
-    if np.linalg.norm(off - (off @ da) * da) > 0.05:
-        return None
-    ta = np.array([0.0, (a1 - a0) @ da])
-    tb = np.sort([(b0 - a0) @ da, (b1 - a0) @ da])
-    gap = max(tb[0] - ta[1], ta[0] - tb[1])
-    if gap > 0.5:
-        return None
-    lo, hi = min(ta[0], tb[0]), max(ta[1], tb[1])
+    a0, da, gap = pair.a0, pair.da, pair.gap
+    lo, hi = min(0.0, pair.tb[0]), max(pair.length, pair.tb[1])
     ea, eb = a[0].evidence, b[0].evidence
     n = ea["vertices"] + eb["vertices"]
     lum = (ea["mean_luminance"] * ea["vertices"] + eb["mean_luminance"] * eb["vertices"]) / n
