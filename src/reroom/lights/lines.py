@@ -144,15 +144,14 @@ def _fixture_light(
     pieces: list[tuple[Rejected, Component, dict]], geo: list[dict], up: np.ndarray
 ) -> Light:
     """The line light of one fixture's pieces: the axis through its downward-facing
-    pieces (vertex-weighted) along all pieces' direction, the radius from the former,
-    the ends from all of them."""
+    pieces (vertex-weighted) along the largest one's direction, the radius from them,
+    the ends from all the pieces."""
     w = np.array([ev["vertices"] if ev["normal_up"] < -0.5 else 0 for _, _, ev in pieces], float)
     lead = int(np.argmax(w))
-    # The direction from every piece, by squared length: the long lit faces hold it
-    # better than a short piece of the tube.
-    seg = np.array([np.asarray(g["p1"], float) - np.asarray(g["p0"], float) for g in geo])
-    seg *= np.where(seg @ seg[lead] < 0, -1.0, 1.0)[:, None]
-    d = (seg * np.linalg.norm(seg, axis=1)[:, None]).sum(0)
+    # The direction of the tube itself (its largest downward-facing piece): the lit
+    # faces are longer but a few centimetres tall, and on `lshape24` their direction
+    # tilted the tube's ends 2 cm apart in height where the tube's own piece gives 0.3 mm.
+    d = np.asarray(geo[lead]["p1"], float) - np.asarray(geo[lead]["p0"], float)
     d /= max(np.linalg.norm(d), 1e-12)
     mids = np.array([(np.asarray(g["p0"], float) + np.asarray(g["p1"], float)) / 2 for g in geo])
     middle = (w[:, None] * mids).sum(0) / w.sum()
