@@ -106,7 +106,10 @@ def edit_ops(edit: str, truth_lights: list[str]) -> list[dict[str, Any]]:
 
 
 #: Targets of issue #6 (furnished): relative RMSE <= 10 % and SSIM >= 0.9 for the empty
-#: room, relight and repaint edits.
+#: room, relight and repaint edits. The table's last column reads them twice: on the raw
+#: figures (full-resolution SSIM, which the truth's own Monte-Carlo noise caps at
+#: 0.62-0.83, so never met) and as docs/benchmarks.md judges them, on the RMSE with both
+#: renders' noise taken out and SSIM on 4x4-averaged pixels.
 TARGET_RMSE = 0.10
 TARGET_SSIM = 0.90
 TARGETED = ("empty", "repaint_walls", "light_off", "light_moved", "window_sunset")
@@ -586,7 +589,7 @@ def main() -> None:
 HEADER = (
     "| edit | cameras | rel. RMSE HDR (noise-corrected) | rel. RMSE clipped | SSIM "
     "| SSIM 1/4 res | ratio of means | truth floor: RMSE / SSIM / SSIM 1/4 "
-    "| ours floor: RMSE / SSIM / SSIM 1/4 | target met |\n"
+    "| ours floor: RMSE / SSIM / SSIM 1/4 | target met: raw / corrected, SSIM 1/4 |\n"
     "|---|---|---|---|---|---|---|---|---|---|"
 )
 
@@ -602,7 +605,13 @@ def _f3(x: float | None) -> str:
 def _row(r: dict[str, Any]) -> str:
     """One markdown table row of an aggregated result."""
     if r["edit"] in TARGETED:
-        met = "yes" if r["rel_rmse"] <= TARGET_RMSE and r["ssim"] >= TARGET_SSIM else "no"
+        raw = r["rel_rmse"] <= TARGET_RMSE and r["ssim"] >= TARGET_SSIM
+        corrected = (
+            r["rel_rmse_noise_corrected"] is not None
+            and r["rel_rmse_noise_corrected"] <= TARGET_RMSE
+            and r["ssim_quarter"] >= TARGET_SSIM
+        )
+        met = f"{'yes' if raw else 'no'} / {'yes' if corrected else 'no'}"
     else:
         met = "-"
     return (
