@@ -31,7 +31,7 @@ from reroom.edit import (
 )
 from reroom.hdr.synthetic import box_room
 from reroom.io.images import read_exr, read_rgb8, write_rgb8
-from reroom.io.mesh import write_ply, write_triangle_ply
+from reroom.io.mesh import read_ply, write_ply, write_triangle_ply
 from reroom.render.mitsuba_env import mitsuba_info
 from reroom.scan import Intrinsics, look_at, write_scan
 
@@ -590,6 +590,52 @@ def test_glowing_fitting_does_not_block_its_line_light(tmp_path: Path) -> None:
         got.append(_probe(edited_scene(scan, [], max_depth=2), floor)[:, 0])
     assert np.all(got[0] > 0)  # the line lights the floor
     assert np.all(got[1] == 0)  # an unflagged tube around it would block all of it
+
+
+def _open_cylinder(centre, radius: float, height: float, inward: bool) -> trimesh.Trimesh:
+    """The side of a cylinder about +z, its faces turned out (or in, for a lining)."""
+    a = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    ring = np.stack([radius * np.cos(a), radius * np.sin(a), np.zeros_like(a)], 1)
+    v = np.vstack([ring, ring + [0.0, 0.0, height]]) + np.asarray(centre, float)
+    i = np.arange(24)
+    j = (i + 1) % 24
+    faces = np.vstack([np.stack([i, j, j + 24], 1), np.stack([i, j + 24, i + 24], 1)])
+    return trimesh.Trimesh(v, faces[:, ::-1] if inward else faces, process=False)
+
+
+def test_a_shade_is_black_inside_and_keeps_its_albedo_outside(tmp_path: Path) -> None:
+    # A lamp shade around a point light, its outside (normals out) and lining (normals
+    # in) separate as in a scan: the lining faces the bulb, whose light on it is in the
+    # solved profile already, so it renders black; the outside never sees the bulb and
+    # keeps its albedo, lit by the room like any surface.
+    v, f = box_room(SIZE, spacing=0.25, obstacle=False)
+    bulb = np.array([2.0, 1.5, 1.5])
+    outside = _open_cylinder(bulb - [0, 0, 0.12], 0.15, 0.24, inward=False)
+    lining = _open_cylinder(bulb - [0, 0, 0.12], 0.145, 0.24, inward=True)
+    mesh = trimesh.util.concatenate([trimesh.Trimesh(v, f, process=False), outside, lining])
+    scan = tmp_path / "s"
+    (scan / "invert").mkdir(parents=True)
+    write_ply(
+        scan / "invert" / "albedo.ply",
+        mesh,
+        {"albedo": np.full((len(mesh.vertices), 3), RHO, np.float32)},
+    )
+    lamp = {
+        "name": "lamp",
+        "type": "point",
+        "geometry": {"position": bulb.tolist(), "axis": [0.0, 0.0, 1.0]},
+        "color": [1.0, 1.0, 1.0],
+        "distribution": {"basis": "inclination", "bins": 4, "profile": [1.0] * 4},
+    }
+    doc = {"format": "reroom-invert", "version": 1, "lights": [lamp]}
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    edited_scene(scan, [], max_depth=2, work_dir=tmp_path / "work")
+    (written,) = (tmp_path / "work").glob("*/albedo.ply")
+    albedo = np.asarray(read_ply(written).vertex_attributes["albedo"])
+    n_room, n_out = len(v), len(outside.vertices)
+    np.testing.assert_allclose(albedo[:n_room], RHO, rtol=1e-6)  # the room
+    np.testing.assert_allclose(albedo[n_room : n_room + n_out], RHO, rtol=1e-6)  # outside
+    assert np.all(albedo[n_room + n_out :] == 0.0)  # the lining
 
 
 def test_line_light_with_phi_bins_off_scale_color_and_move(scan: Path, tmp_path: Path) -> None:

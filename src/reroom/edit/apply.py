@@ -59,7 +59,7 @@ from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
 from reroom.io.jsonfile import read_json
 from reroom.io.mesh import read_ply, write_triangle_ply
-from reroom.rays.geometry import segment_distance
+from reroom.rays.geometry import segment_closest, segment_distance
 
 __all__ = [
     "RoomModel",
@@ -512,6 +512,37 @@ def _fixture_faces(
     return _grown_pieces(model, emitting, near, grow=True)
 
 
+def _facing_their_light(model: RoomModel, faces: np.ndarray) -> np.ndarray:
+    """Which of ``faces`` do not clearly turn their back on the nearest point or line
+    light (the point of its segment nearest them): the cosine between the face's normal
+    and the way to the light above -0.2. Faces edge-on to it count as facing it (a lamp
+    pole under its bulb, whose scanned albedo is the bright wall behind it). All of
+    them when the model has no such light."""
+    v = model.vertices[faces]
+    centre = v.mean(axis=1)
+    normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    best = np.full(len(faces), np.inf)
+    toward = np.zeros_like(centre)
+    for light in model.doc.get("lights", []):
+        geo = light.get("geometry", {})
+        if light["type"] == "point":
+            q = np.broadcast_to(np.asarray(geo["position"], float), centre.shape)
+        elif light["type"] == "line":
+            q = segment_closest(centre, geo["p0"], geo["p1"])
+        else:
+            continue
+        d = np.linalg.norm(q - centre, axis=1)
+        closer = d < best
+        best[closer] = d[closer]
+        toward[closer] = q[closer] - centre[closer]
+    if not np.isfinite(best).any():
+        return np.ones(len(faces), bool)
+    cos = np.einsum("ij,ij->i", normal, toward) / np.maximum(
+        np.linalg.norm(normal, axis=1) * np.linalg.norm(toward, axis=1), 1e-300
+    )
+    return cos > -0.2
+
+
 def _grown_pieces(
     model: RoomModel, emitting: np.ndarray, near: np.ndarray, grow: bool
 ) -> np.ndarray:
@@ -732,10 +763,14 @@ def edited_scene(
     # transfer's 1/d^2 is least accurate: the tube's baffles solve to ~0.75 where the
     # truth is 0.04). Rendered with any albedo they add that light a second time, and
     # lit from centimetres they do it as fireflies (0.5 % of the pixels of a 64-spp
-    # view, 0.02 % with the tube off). Every fitting vertex is therefore black.
+    # view, 0.02 % with the tube off). So the fitting faces that face their light (a
+    # shade's lining, a housing's inside) are black. The faces turned away from it (a
+    # shade's outside) never see its light and keep their albedo: the room lights them,
+    # and black they showed as a black shade in every view (session 28).
     emitting = _emitting_faces(model)
     glow = (model.light_flag[model.faces].sum(axis=1) >= 2) & ~emitting
     fittings = _fixture_faces(model, emitting) & ~glow
+    fittings[fittings] = _facing_their_light(model, model.faces[fittings])
     on_fitting = np.zeros(len(albedo), bool)
     on_fitting[np.unique(model.faces[fittings])] = True
     albedo[on_fitting] = 0.0
