@@ -889,7 +889,7 @@ def run_invert(
     columns: list[np.ndarray] = []
     info: list[dict] = []
     incl = InclinationBasis(options.bins)
-    chain = np.stack([np.arange(options.bins - 1), np.arange(1, options.bins)], axis=1)
+    chain = _chain(options.bins)
     line_basis = LineBasis(options.bins, options.line_phi_bins, options.line_phi_fold)
     line_adj, line_adj_w = line_basis.adjacency(options.line_phi_smooth)
     n_recv = normals[receivers] / np.linalg.norm(normals[receivers], axis=1, keepdims=True)
@@ -979,16 +979,7 @@ def run_invert(
         g = light.geometry
         if light.type == "point":
             shape, open_info = _point_open_shape(mesh, light, incl, options, notes)
-            f = point_light_transfer(
-                caster,
-                p_recv,
-                n_recv,
-                np.asarray(g["position"], float),
-                np.asarray(g["axis"], float),
-                incl,
-                clearance=options.point_clearance,
-                fixture=options.fixture_margin,
-            )
+            f = _point_transfer(caster, p_recv, n_recv, g["position"], g["axis"], incl, options)
             blocks.append(
                 LightBlock(
                     light.name,
@@ -1408,6 +1399,20 @@ def _sun_from_its_patch(problem, result, options, notes: list[str], progress=Non
     return again
 
 
+def _chain(n: int) -> np.ndarray:
+    """``(n - 1, 2)`` neighbouring pairs of ``n`` bins in a row (a profile's smoothness)."""
+    return np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+
+
+def _point_transfer(caster, p_recv, n_recv, position, axis, basis, options) -> np.ndarray:
+    """A point light's transfer at the receivers with the run's clearance and fixture
+    margin (the first solve, the refinement and the split all cast it alike)."""
+    return point_light_transfer(
+        caster, p_recv, n_recv, np.asarray(position, float), np.asarray(axis, float), basis,
+        clearance=options.point_clearance, fixture=options.fixture_margin,
+    )  # fmt: skip
+
+
 def _split_point_bins(
     caster, p_recv, n_recv, rows, blocks, columns, info, problem, result, options
 ) -> None:
@@ -1428,20 +1433,13 @@ def _split_point_bins(
             continue
         g = info[k]["geometry"]
         basis = InclinationBasis(2 * block.size)
-        fine = point_light_transfer(
-            caster, p_recv, n_recv, np.asarray(g["position"], float),
-            np.asarray(g["axis"], float), basis, clearance=options.point_clearance,
-            fixture=options.fixture_margin,
-        )  # fmt: skip
+        fine = _point_transfer(caster, p_recv, n_recv, g["position"], g["axis"], basis, options)
         coarse = result.intensities[block.name]
         own = gain * (problem.transfer[:, cols] @ coarse)
         target = problem.radiance - model + own
         intens, share = split_bins(coarse, fine[rows], target, gain, weights)
         columns[k] = fine
-        blocks[k] = LightBlock(
-            block.name, "point", basis.size, True,
-            np.stack([np.arange(basis.size - 1), np.arange(1, basis.size)], axis=1),
-        )  # fmt: skip
+        blocks[k] = LightBlock(block.name, "point", basis.size, True, _chain(basis.size))
         result.intensities[block.name] = intens
         color = result.colors[block.name]
         result.profiles[block.name] = intens @ color / max(float(color @ color), 1e-300)
@@ -1596,16 +1594,7 @@ def _refine_point_lights(
         if ref.shift < 0.005:
             continue
         old_col, old_geom = columns[k], g
-        columns[k] = point_light_transfer(
-            caster,
-            p_recv,
-            n_recv,
-            ref.position,
-            np.asarray(g["axis"], float),
-            incl,
-            clearance=options.point_clearance,
-            fixture=options.fixture_margin,
-        )
+        columns[k] = _point_transfer(caster, p_recv, n_recv, ref.position, g["axis"], incl, options)
         info[k]["geometry"] = {**g, "position": ref.position.tolist()}
         info[k]["refined_from"] = list(map(float, g["position"]))
         moved.append((k, ref.shift, old_col, old_geom))
