@@ -161,17 +161,10 @@ def _fixture_light(
     perp = up - (up @ d) * d
     perp /= max(np.linalg.norm(perp), 1e-12)
     evs = [ev for _, _, ev in pieces]
-    n = int(sum(ev["vertices"] for ev in evs))
-    evidence = {
-        **evs[lead],
-        "vertices": n,
-        "mean_luminance": float(sum(ev["mean_luminance"] * ev["vertices"] for ev in evs) / n),
-        "pieces": len(pieces),
-        "size_m": [hi - lo, 2 * radius],
-        "centroid": middle + (lo + hi) / 2 * d,
-        "frames_seeing": max(ev.get("frames_seeing", 0) for ev in evs),
-        "frames_bright": max(ev.get("frames_bright", 0) for ev in evs),
-    }
+    evidence = _merged_evidence(
+        [evs[lead], *evs[:lead], *evs[lead + 1 :]], len(pieces), [hi - lo, 2 * radius],
+        middle + (lo + hi) / 2 * d,
+    )  # fmt: skip
     geometry = {"p0": middle + lo * d, "p1": middle + hi * d, "d_perp": perp, "radius": radius}
     n_down = int((w > 0).sum())
     reason = (
@@ -180,6 +173,22 @@ def _fixture_light(
         f"of its fitting), {radiance_text(evs[lead])}"
     )
     return Light("", "line", "detected", geometry, evidence, reason)
+
+
+def _merged_evidence(evs: list[dict], pieces: int, size: list, centroid: np.ndarray) -> dict:
+    """The evidence of a line joined from pieces: the first piece's, with the vertices
+    summed, the luminance their weighted mean and the most frames any piece had."""
+    n = int(sum(ev["vertices"] for ev in evs))
+    return {
+        **evs[0],
+        "vertices": n,
+        "mean_luminance": float(sum(ev["mean_luminance"] * ev["vertices"] for ev in evs) / n),
+        "pieces": pieces,
+        "size_m": size,
+        "centroid": centroid,
+        "frames_seeing": max(ev.get("frames_seeing", 0) for ev in evs),
+        "frames_bright": max(ev.get("frames_bright", 0) for ev in evs),
+    }
 
 
 def _join(a: tuple[Light, np.ndarray], b: tuple[Light, np.ndarray]) -> tuple | None:
@@ -191,15 +200,10 @@ def _join(a: tuple[Light, np.ndarray], b: tuple[Light, np.ndarray]) -> tuple | N
     lo, hi = min(0.0, pair.tb[0]), max(pair.length, pair.tb[1])
     ea, eb = a[0].evidence, b[0].evidence
     n = ea["vertices"] + eb["vertices"]
-    lum = (ea["mean_luminance"] * ea["vertices"] + eb["mean_luminance"] * eb["vertices"]) / n
     radius = (ga["radius"] * ea["vertices"] + gb["radius"] * eb["vertices"]) / n
     geometry = {**ga, "p0": a0 + lo * da, "p1": a0 + hi * da, "radius": radius}
     pieces = ea.get("pieces", 1) + eb.get("pieces", 1)
-    evidence = {**ea, "vertices": n, "mean_luminance": lum, "pieces": pieces}
-    evidence["frames_seeing"] = max(ea.get("frames_seeing", 0), eb.get("frames_seeing", 0))
-    evidence["frames_bright"] = max(ea.get("frames_bright", 0), eb.get("frames_bright", 0))
-    evidence["size_m"] = [hi - lo, 2 * radius]
-    evidence["centroid"] = a0 + (lo + hi) / 2 * da
+    evidence = _merged_evidence([ea, eb], pieces, [hi - lo, 2 * radius], a0 + (lo + hi) / 2 * da)
     reason = (
         f"kept: line light, {hi - lo:.2f} m long ({pieces} collinear pieces joined, "
         f"gap {max(gap, 0.0):.2f} m), {radiance_text(evidence)}"
