@@ -84,3 +84,10 @@ def test_the_pipeline_exports_twice_the_bins_at_the_solve_s_power(tmp_path: Path
         assert (scan / "invert" / "lamp.ies").is_file()
     assert entries[True]["distribution"]["split_from_bins"] == opts.bins
     np.testing.assert_allclose(entries[True]["power"], entries[False]["power"], rtol=1e-6)
+
+
+def test_a_negative_number_of_splits_is_refused_before_any_work(tmp_path: Path) -> None:
+    for bad in ({"point_splits": -1}, {"fill_albedo": 0.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            run_invert(tmp_path / "nothing_here", None, InvertOptions(**bad))
+    assert not (tmp_path / "nothing_here").exists()

@@ -585,7 +585,13 @@ def _compare_distribution(
         effective = inclination_power(truth)
         dist.update(basis="inclination")
         solved_bins = e["distribution"].get("split_from_bins")
-        if solved_bins is not None and solved_bins < len(profile):
+        halvings = len(profile) // solved_bins if solved_bins else 0
+        if (
+            solved_bins is not None
+            and solved_bins < len(profile)
+            and solved_bins * halvings == len(profile)
+            and halvings & (halvings - 1) == 0  # split in two, some number of times
+        ):
             # Solved at fewer bins, then split (reroom.invert.fine_profiles): also compare
             # at the bins of the solve, the thesis's basis, each bin's flux as exported.
             coarse = profile

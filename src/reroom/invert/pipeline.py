@@ -788,6 +788,8 @@ def run_invert(
         )
     if not 0.0 < options.fill_albedo <= 1.0:
         raise ValueError(f"fill_albedo must be in (0, 1], got {options.fill_albedo}")
+    if options.point_splits < 0:
+        raise ValueError(f"point_splits must be >= 0, got {options.point_splits}")
     scan = Path(scan_dir)
     out = Path(out_dir) if out_dir is not None else scan / "invert"
     notes: list[str] = []
