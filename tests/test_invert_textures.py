@@ -305,3 +305,93 @@ def test_pixels_across_a_silhouette_are_left_out(tmp_path: Path):
     seen = walls[1.0].count > 0
     assert seen.sum() > 1000
     np.testing.assert_allclose(walls[1.0].albedo[seen][:, 0], WALL, rtol=0.03)
+
+
+def test_a_beam_edge_between_vertices_stays_out_of_the_albedo(tmp_path: Path):
+    """A downlight's beam ends in a sharp circle on the floor, between the mesh's 10 cm
+    vertices. Interpolating the vertices' irradiance blurs that edge, and the texture
+    takes the difference as albedo: a ring, a ghost of the beam that stays when the light
+    is moved. With the point light's direct light evaluated at each sample
+    (``sharp_irradiance``) the floor's checker comes back without it."""
+    from reroom.invert.direct import point_light_irradiance
+
+    root = tmp_path / "scan"
+    mesh, labels = _room()
+    caster = RayCaster(mesh)
+    light, axis = np.array([2.0, 1.5, 2.4]), np.array([0.0, 0.0, 1.0])
+    bins = 64
+    theta = (np.arange(bins) + 0.5) * np.pi / bins  # from the axis: pi is straight down
+    profile = np.where(theta > np.radians(155.0), 8.0, 0.0)  # a 25-degree beam
+    intens = np.repeat(profile[:, None], 3, axis=1)
+
+    def sharp(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        return point_light_irradiance(
+            caster, points, normals, light, axis, intens, interpolation="constant"
+        )
+
+    up = np.tile([0.0, 0.0, 1.0], (len(mesh.vertices), 1))
+    floor_v = labels == 1
+    sharp_v = np.zeros((len(mesh.vertices), 3))
+    sharp_v[floor_v] = sharp(mesh.vertices[floor_v], up[floor_v])
+    intr = Intrinsics.from_fov(160, 120, 70.0)
+    poses = [look_at([0.5, 0.5, 1.6], [2.2, 1.6, 0.0]), look_at([3.5, 2.5, 1.7], [1.8, 1.4, 0.0])]
+    images = []
+    for pose in poses:
+        o, d = Frame(0, root / "x.png", pose, intr).pixel_rays()
+        hits = caster.intersect(o, d, tmin=caster.eps)
+        e = np.full(len(o), np.pi)
+        on_floor = hits.hit & (hits.points[:, 2] < 1e-4)
+        n_up = np.tile([0.0, 0.0, 1.0], (int(on_floor.sum()), 1))
+        e[on_floor] += sharp(hits.points[on_floor], n_up)[:, 0]
+        linear = np.clip(_radiance(hits.points) * e / np.pi * 0.5, 0.0, 1.0)
+        code = np.round(255.0 * linear ** (1 / 2.2)).astype(np.uint8)
+        images.append(np.repeat(code.reshape(intr.height, intr.width, 1), 3, axis=2))
+    write_scan(root, mesh, intr, poses, images, meta={"reroom": {"response": "gamma2.2"}})
+    (root / "hdr").mkdir()
+    frames = [{"index": j, "scale": [0.5] * 3} for j in range(len(poses))]
+    (root / "hdr" / "exposures.json").write_text(
+        json.dumps({"response": "gamma2.2", "frames": frames})
+    )
+    irradiance = np.pi + sharp_v
+    floors = {}
+    for on in (False, True):
+        extra = {"sharp_irradiance": sharp, "sharp_at_vertices": sharp_v} if on else {}
+        textures, _ = photo_textures(
+            root, mesh, labels, np.eye(3), irradiance, texel=0.025, **extra
+        )
+        floors[on] = next(t for t in textures if t.label == "floor")
+    t = floors[True]
+    h, w = t.shape
+    uu, vv = np.meshgrid(
+        t.origin[0] + (np.arange(w) + 0.5) * t.texel, t.origin[1] + (np.arange(h) + 0.5) * t.texel
+    )
+    radius = 2.4 * np.tan(np.radians(25.0))
+    ring = np.abs(np.hypot(uu - light[0], vv - light[1]) - radius) < 0.05
+    inner = (np.abs(uu / CELL - np.round(uu / CELL)) * CELL > 0.04) & (
+        np.abs(vv / CELL - np.round(vv / CELL)) * CELL > 0.04
+    )
+    ok = ring & inner & (floors[False].count > 0) & (t.count > 0)
+    assert ok.sum() > 100
+    want = _floor_albedo(np.c_[uu[ok], vv[ok]])
+    err = {on: np.abs(floors[on].albedo[ok][:, 0] / want - 1.0) for on in (False, True)}
+    assert np.mean(err[False] > 0.1) > 0.2  # the ghost ring
+    assert np.percentile(err[True], 95) < 0.04
+
+
+def test_sharp_irradiance_comes_with_its_vertex_values(texture_scan):
+    root, mesh, labels = texture_scan
+    irradiance = np.full((len(mesh.vertices), 3), np.pi)
+    with pytest.raises(ValueError, match="go together"):
+        photo_textures(
+            root, mesh, labels, np.eye(3), irradiance, sharp_irradiance=lambda p, n: 0 * p
+        )
+    with pytest.raises(ValueError, match="sharp_at_vertices has shape"):
+        photo_textures(
+            root,
+            mesh,
+            labels,
+            np.eye(3),
+            irradiance,
+            sharp_irradiance=lambda p, n: 0 * p,
+            sharp_at_vertices=np.zeros((3, 3)),
+        )

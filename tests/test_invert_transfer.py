@@ -231,6 +231,34 @@ def test_point_light_over_plane_matches_closed_form_and_shadows():
     np.testing.assert_array_equal(fit[~inside], free[~inside])
 
 
+def test_point_light_irradiance_is_the_transfer_read_as_the_renderer_reads_it():
+    from reroom.invert.direct import point_light_irradiance
+
+    plane = grid_plane(6.0, 0.25)
+    light = np.array([0.3, -0.2, 2.0])
+    caster = RayCaster(plane)
+    p, n = plane.vertices, np.tile([0.0, 0.0, 1.0], (len(plane.vertices), 1))
+    basis = InclinationBasis(32)
+    rng = np.random.default_rng(5)
+    intens = rng.uniform(0.5, 2.0, (32, 3))
+    f = point_light_transfer(caster, p, n, light, [0, 0, 1], basis)
+    # Read per bin ("constant"), it is exactly the transfer times the profile.
+    got = point_light_irradiance(caster, p, n, light, [0, 0, 1], intens, interpolation="constant")
+    np.testing.assert_allclose(got, f @ intens, rtol=1e-12)
+    # Read between bin centres ("linear", the renderer's default): the geometry times
+    # the profile interpolated at each receiver's angle.
+    lin = point_light_irradiance(caster, p, n, light, [0, 0, 1], intens)
+    a = p - light
+    d = np.linalg.norm(a, axis=1)
+    theta = np.arccos(a[:, 2] / d)
+    centres = (np.arange(32) + 0.5) * np.pi / 32
+    for c in range(3):
+        want = f.sum(axis=1) * np.interp(theta, centres, intens[:, c])
+        np.testing.assert_allclose(lin[:, c], want, rtol=1e-9)
+    with pytest.raises(ValueError, match=r"intensities must be \(bins, 3\)"):
+        point_light_irradiance(caster, p, n, light, [0, 0, 1], intens[:, 0])
+
+
 # -- line lights ------------------------------------------------------------------------------
 
 

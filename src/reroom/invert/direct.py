@@ -46,7 +46,12 @@ from reroom.invert import _kernels
 from reroom.invert.basis import InclinationBasis, LineBasis
 from reroom.rays import RayCaster
 
-__all__ = ["DEFAULT_LINE_SEGMENTS", "line_light_transfer", "point_light_transfer"]
+__all__ = [
+    "DEFAULT_LINE_SEGMENTS",
+    "line_light_transfer",
+    "point_light_irradiance",
+    "point_light_transfer",
+]
 
 #: Shadow-ray segments per line light; chosen in ``benchmarks/bench_transfer.py``.
 DEFAULT_LINE_SEGMENTS = 32
@@ -142,6 +147,68 @@ def point_light_transfer(
     ``(N, bins)`` float64: ``F[i, bin] = V(i) max(0, n . (P - x)) / |P - x|^3`` in the
     bin of ``theta = acos(unit(x - P) . axis)``, zero elsewhere.
     """
+    value, cos_theta = _point_geometry(
+        caster, points, normals, position, axis, offset, clearance, fixture
+    )
+    out = np.zeros((len(value), basis.bins))
+    rows = np.flatnonzero(value > 0)
+    out[rows, basis.bin_of(cos_theta[rows])] = value[rows]
+    return out
+
+
+def point_light_irradiance(
+    caster: RayCaster,
+    points: ArrayLike,
+    normals: ArrayLike,
+    position: ArrayLike,
+    axis: ArrayLike,
+    intensities: ArrayLike,
+    *,
+    interpolation: str = "linear",
+    offset: float | ArrayLike | None = None,
+    clearance: float = 0.02,
+    fixture: float = 0.0,
+) -> np.ndarray:
+    """A point light's direct irradiance at each point, as the edit renderer draws it.
+
+    ``intensities`` is the light's ``(bins, 3)`` profile (bin ``k`` of ``theta`` from
+    the axis, as :func:`point_light_transfer`), read between bin centres with
+    ``interpolation`` as the goniometric emitter reads it
+    (:func:`reroom.render.line_emitter.line_profile_value`). ``offset``, ``clearance``
+    and ``fixture`` as in :func:`point_light_transfer`.
+
+    Returns
+    -------
+    ``(N, 3)`` float64: ``V(i) max(0, n . (P - x)) / |P - x|^3 J(theta)``.
+    """
+    from reroom.render.line_emitter import line_profile_value
+
+    prof = np.asarray(intensities, np.float64)
+    if prof.ndim != 2 or prof.shape[1] != 3:
+        raise ValueError(f"intensities must be (bins, 3), got {prof.shape}")
+    value, cos_theta = _point_geometry(
+        caster, points, normals, position, axis, offset, clearance, fixture
+    )
+    out = np.zeros((len(value), 3))
+    rows = np.flatnonzero(value > 0)
+    theta = np.arccos(np.clip(cos_theta[rows], -1.0, 1.0))
+    for c in range(3):
+        out[rows, c] = value[rows] * line_profile_value(prof[:, c], theta, interpolation)
+    return out
+
+
+def _point_geometry(
+    caster: RayCaster,
+    points: ArrayLike,
+    normals: ArrayLike,
+    position: ArrayLike,
+    axis: ArrayLike,
+    offset: float | ArrayLike | None,
+    clearance: float,
+    fixture: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 5.10's geometry per point: ``V max(0, cos_r) / d^2`` (0 where occluded or
+    within ``fixture`` of the light) and ``cos theta`` of the emission direction."""
     p, n, starts = _points_normals(points, normals, offset, caster)
     pos = np.asarray(position, dtype=np.float64).reshape(3)
     ax = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -160,10 +227,7 @@ def point_light_transfer(
     value[
         lit[~_unoccluded(caster, starts[lit], np.broadcast_to(pos, (len(lit), 3)), clearance)]
     ] = 0
-    out = np.zeros((len(p), basis.bins))
-    rows = np.flatnonzero(value > 0)
-    out[rows, basis.bin_of(cos_theta[rows])] = value[rows]
-    return out
+    return value, cos_theta
 
 
 def _line_integral(h: np.ndarray, c0: np.ndarray, c1: np.ndarray, sa: np.ndarray, sb: np.ndarray):

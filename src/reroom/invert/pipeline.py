@@ -190,6 +190,12 @@ class InvertOptions:
         surfaces. Needs ``layout.json`` and ``hdr/exposures.json``.
     texel : float or None
         Their texel size in metres (None: the median pixel footprint, 0.5-5 cm).
+    texture_point_direct : bool
+        The textures take the point lights' direct light at each photo sample, read
+        between bins as the renderer reads the profile, and interpolate only the rest of
+        the model's irradiance between vertices (``photo_textures``' ``sharp_irradiance``).
+        False interpolates all of it: the edge of a downlight's beam that falls between
+        vertices then stays in the albedo as a ghost when the light is moved.
     window_photos : bool
         Render windows from the photos: ``window_<name>.exr`` shows, within each solved
         cube cell, the detail of the pixels that looked out through the opening, with
@@ -305,6 +311,7 @@ class InvertOptions:
     min_bin_support: float = 0.01
     textures: bool = True
     texel: float | None = None
+    texture_point_direct: bool = True
     window_photos: bool = True
     window_photo_prior: float = 0.0
     window_photo_shapes: bool = False
@@ -1187,6 +1194,12 @@ def run_invert(
         textures = _surface_textures(
             scan, mesh, labels, receivers, indirect, transfer, blocks, result, albedo,
             caster, options, notes, radiance_override is not None, progress,
+            point_direct=(
+                _point_direct(caster, blocks, info, result, options)
+                if options.texture_point_direct
+                else None
+            ),
+            p_recv=p_recv, n_recv=n_recv,
         )  # fmt: skip
         timings["textures"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t0
@@ -1241,9 +1254,16 @@ def _surface_textures(
     notes: list[str],
     evaluation_radiance: bool,
     progress,
+    point_direct=None,
+    p_recv: np.ndarray | None = None,
+    n_recv: np.ndarray | None = None,
 ):
     """The photo textures of the floor, ceiling and walls (None, with a note, when the
-    scan lacks what they need)."""
+    scan lacks what they need).
+
+    ``point_direct(points, normals)`` (:func:`_point_direct`), with the receivers' points
+    and normals, is the point lights' direct light that the textures evaluate at each
+    sample instead of interpolating it between vertices."""
     from reroom.invert.solve import model_irradiance
     from reroom.invert.textures import photo_textures
     from reroom.io.jsonfile import read_json
@@ -1260,6 +1280,10 @@ def _surface_textures(
     )
     irradiance = np.full((len(mesh.vertices), 3), np.nan)
     irradiance[receivers] = model_irradiance(indirect, transfer, blocks, result)
+    sharp = None
+    if point_direct is not None:
+        sharp = np.zeros_like(irradiance)
+        sharp[receivers] = point_direct(p_recv, n_recv)
     try:
         textures, stats = photo_textures(
             scan,
@@ -1269,6 +1293,8 @@ def _surface_textures(
             irradiance,
             albedo,
             texel=options.texel,
+            sharp_irradiance=None if sharp is None else point_direct,
+            sharp_at_vertices=sharp,
             caster=caster,
             progress=None if progress is None else (lambda d, n: progress("invert textures", d, n)),
         )
@@ -1404,6 +1430,32 @@ def _sun_from_its_patch(problem, result, options, notes: list[str], progress=Non
 def _chain(n: int) -> np.ndarray:
     """``(n - 1, 2)`` neighbouring pairs of ``n`` bins in a row (a profile's smoothness)."""
     return np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+
+
+def _point_direct(caster, blocks, info, result, options):
+    """``f(points, normals) -> (N, 3)``: the point lights' direct irradiance as solved,
+    read between bins as the renderer reads it (None without point lights)."""
+    from reroom.invert.direct import point_light_irradiance
+
+    lights = [
+        (info[k]["geometry"], np.asarray(result.intensities[b.name], float))
+        for k, b in enumerate(blocks)
+        if b.kind == "point"
+    ]
+    if not lights:
+        return None
+
+    def direct(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(points), 3))
+        for g, intens in lights:
+            out += point_light_irradiance(
+                caster, points, normals, np.asarray(g["position"], float),
+                np.asarray(g["axis"], float), intens, clearance=options.point_clearance,
+                fixture=options.fixture_margin,
+            )  # fmt: skip
+        return out
+
+    return direct
 
 
 def _point_transfer(caster, p_recv, n_recv, position, axis, basis, options) -> np.ndarray:

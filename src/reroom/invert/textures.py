@@ -478,6 +478,8 @@ def photo_textures(
     max_plane_distance: float = 0.06,
     footprint: float = 1.0,
     max_texels: int = 16_000_000,
+    sharp_irradiance: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    sharp_at_vertices: np.ndarray | None = None,
     caster=None,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[SurfaceTexture], dict[str, Any]]:
@@ -524,6 +526,16 @@ def photo_textures(
         on the wall behind it and a table a light one on the floor. 0 turns it off.
     max_texels:
         The texel size grows until all planes together have at most this many.
+    sharp_irradiance, sharp_at_vertices:
+        The part of ``irradiance`` that changes faster than the mesh's vertices follow
+        (a point light's direct light at the edge of its beam or of a shadow), as
+        ``sharp_irradiance(points, normals) -> (N, 3)`` and its ``(V, 3)`` values at the
+        vertices. Each sample's irradiance is then that function at the sample's hit
+        (the face's normal turned to the camera) plus the rest, ``irradiance -
+        sharp_at_vertices``, interpolated over the hit triangle; at a vertex it is
+        ``irradiance`` as before. Without them the whole irradiance is interpolated, and
+        a beam's edge that falls between vertices is drawn into the albedo (a ghost of
+        the light that stays when the light is moved or switched off).
     caster:
         A :class:`reroom.rays.RayCaster` on ``mesh`` (built if not given).
     progress:
@@ -549,6 +561,17 @@ def photo_textures(
     irradiance = np.asarray(irradiance, float)
     if irradiance.shape != (len(vertices), 3):
         raise ValueError(f"irradiance has shape {irradiance.shape}, expected ({len(vertices)}, 3)")
+    if (sharp_irradiance is None) != (sharp_at_vertices is None):
+        raise ValueError("sharp_irradiance and sharp_at_vertices go together")
+    if sharp_at_vertices is not None:
+        sharp_at_vertices = np.asarray(sharp_at_vertices, float)
+        if sharp_at_vertices.shape != irradiance.shape:
+            raise ValueError(
+                f"sharp_at_vertices has shape {sharp_at_vertices.shape}, expected "
+                f"{irradiance.shape}"
+            )
+        # The smooth rest, interpolated over a triangle; the sharp part is added per sample.
+        irradiance = irradiance - sharp_at_vertices
     planes, face_plane = planar_groups(
         vertices, faces, labels, rotation, max_distance=max_plane_distance
     )
@@ -704,6 +727,10 @@ def photo_textures(
         sat = (codes >= saturation_level).any(axis=1)
         bary = hits.barycentric[idx]
         e = np.einsum("nk,nkc->nc", bary, irradiance[faces[f]])
+        if sharp_irradiance is not None:
+            fn = caster.face_normals[f]
+            n_cam = np.where((np.einsum("ij,ij->i", fn, d[idx]) > 0)[:, None], -fn, fn)
+            e = e + sharp_irradiance(hits.points[idx], n_cam)
         no_e = ~np.all(np.isfinite(e) & (e > 0), axis=1)
         plane = face_plane[f]
         a = hits.points[idx] @ rotation.T
