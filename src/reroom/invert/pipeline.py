@@ -1438,7 +1438,7 @@ def _point_direct(caster, blocks, info, result, options):
     from reroom.invert.direct import point_light_irradiance
 
     lights = [
-        (info[k]["geometry"], np.asarray(result.intensities[b.name], float))
+        (info[k]["geometry"], np.nan_to_num(np.asarray(result.intensities[b.name], float)))
         for k, b in enumerate(blocks)
         if b.kind == "point"
     ]
