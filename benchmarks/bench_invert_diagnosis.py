@@ -93,9 +93,12 @@ reads ``ground_truth/``, which the estimate never does.
     receivers, and with their radiance recoloured to the truth's chroma of that cluster:
     the lights' power errors and the other albedos against the run's.
 ``--fix-at-truth NAME[,NAME]``
-    ``reroom invert`` once, then its problem re-solved with those point or line lights
-    fixed at their true profile (moved into ``E_ind``): the other lights' power errors
-    and the albedos against the run's.
+    ``reroom invert`` once, then its problem re-solved with those area, point or line
+    lights fixed at their truth (true profile, or an area light's true radiance; moved
+    into ``E_ind``): the other lights' power errors and the albedos against the run's,
+    and each window's cells (distribution error; the brightest true cells and the cells
+    the re-solve moved most, luminance / k). ``--fix-with-true-radiance``: the same on
+    the true per-vertex radiance instead of the HDR mesh.
 ``--per-light NAME``
     The truth run (true radiance, true lights) split light by light at its receivers:
     each true light path-traced alone (depth 2) and ``E_ind`` against the path tracer's
@@ -131,7 +134,12 @@ import numpy as np
 import scipy.sparse
 
 from reroom.hdr.linearize import LUMA
-from reroom.invert.evaluate import evaluate_invert, hidden_as_unobserved, lights_from_truth
+from reroom.invert.evaluate import (
+    distribution_relative_l2,
+    evaluate_invert,
+    hidden_as_unobserved,
+    lights_from_truth,
+)
 from reroom.invert.export import light_entries
 from reroom.invert.pipeline import InvertOptions, run_invert
 from reroom.invert.solve import SolveOptions, solve_lighting
@@ -1301,8 +1309,14 @@ def bin_shares(scan: Path, work: Path, name: str) -> None:
         )
 
 
-def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
-    """The run's problem re-solved with some point or line lights fixed at their truth.
+def fix_at_truth(
+    scan: Path,
+    work: Path,
+    names: list[str],
+    true_radiance: bool = False,
+    radiance: np.ndarray | None = None,
+) -> None:
+    """The run's problem re-solved with some area, point or line lights fixed at their truth.
 
     ``reroom invert`` once (HDR radiance, the scan's lights); then each named light's
     columns are taken out of the problem and its true profile (``evaluate_invert``'s
@@ -1311,10 +1325,16 @@ def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
     Printed: every other light's power error and the albedos, scaled from the run's own
     evaluation by the re-solve's ratios, next to the run's. It asks whether an error of
     one light is held by another: if fixing light A leaves B's error as it was, B's error
-    is not A's.
+    is not A's. With ``true_radiance`` the run reads the true per-vertex radiance
+    instead of the HDR mesh (the scan's detected lights kept): whether what is left is
+    the HDR's or the model's; ``radiance``, a ``(V, 3)`` radiance in the truth's units,
+    likewise (e.g. the HDR mesh's with some vertices swapped for the truth's).
     """
-    res = _invert(scan, work / "fix_at_truth")
-    report = evaluate_invert(scan, work / "fix_at_truth")
+    if true_radiance:
+        radiance = _truth(scan)[0]
+    out = work / ("fix_at_truth" if radiance is None else "fix_at_truth_radiance")
+    res = _invert(scan, out, radiance)
+    report = evaluate_invert(scan, out)
     prob = res.problem
     k = np.asarray(report["radiance_scale"], float)
     offsets = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])])
@@ -1327,7 +1347,13 @@ def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
     fixed_cols: list[np.ndarray] = []
     for name in names:
         i = order.index(name)
-        true_profile = np.asarray(truth_of[name]["distribution"]["true_profile"], float)
+        if prob.lights[i].kind == "area":
+            # One Lambertian element: its radiance, from the true power pi L A.
+            area = float(res.light_info[i]["geometry"].get("area", 0.0))
+            true_profile = np.asarray(truth_of[name]["true_power"], float)[None, :]
+            true_profile = true_profile / (np.pi * area)
+        else:
+            true_profile = np.asarray(truth_of[name]["distribution"]["true_profile"], float)
         cols = np.arange(offsets[i], offsets[i + 1])
         indirect = indirect + np.asarray(prob.transfer[:, cols] @ (true_profile * k))
         fixed_cols.append(cols)
@@ -1365,6 +1391,42 @@ def fix_at_truth(scan: Path, work: Path, names: list[str]) -> None:
         if name in errors:
             new_err = (1 + errors[name]) * after[name] / base[name] - 1
             print(f"| {name} | {_pct(errors[name])} | {_pct(new_err)} |")
+    _window_cells_after(report, res, res2, min_bin_support)
+
+
+def _window_cells_after(report: dict, res, res2, min_bin_support: float) -> None:
+    """Each window's cells, the run's and a re-solve's, against the truth's (luminance / k).
+
+    The distribution error of both, then the cells whose true luminance is largest and
+    those the re-solve moved most: where a window's light comes from, as solved.
+    """
+    k = np.asarray(report["radiance_scale"], float)
+    truth_of = {e["name"]: e for e in report["lights"]}
+    ents = {e["name"]: e for e in light_entries(res, None, min_bin_support)}
+    ents2 = {e["name"]: e for e in light_entries(res2, None, min_bin_support)}
+    for name, e2 in ents2.items():
+        if e2["type"] != "window" or name not in truth_of:
+            continue
+        truth = np.asarray(truth_of[name]["distribution"]["true_cells"], float)
+        runs = {
+            "the run": np.asarray(ents[name]["distribution"]["cells"], float),
+            "re-solved": np.asarray(e2["distribution"]["cells"], float),
+        }
+        l2 = {
+            label: distribution_relative_l2(c, truth, k, truth @ LUMA > 0)
+            for label, c in runs.items()
+        }
+        print(
+            f"\n`{name}`'s cells, relative L2 (luminance / k, cells with light): the run "
+            f"{100 * l2['the run']:.1f} %, re-solved {100 * l2['re-solved']:.1f} %\n"
+        )
+        lum = {label: (c / k) @ LUMA for label, c in runs.items()}
+        t = truth @ LUMA
+        moved = np.abs(lum["re-solved"] - lum["the run"])
+        rows = list(np.argsort(-t)[:8]) + list(np.argsort(-moved)[:6])
+        print("| cell | true | the run | re-solved |\n|---|---|---|---|")
+        for j in dict.fromkeys(int(r) for r in rows):
+            print(f"| {j} | {t[j]:.2f} | {lum['the run'][j]:.2f} | {lum['re-solved'][j]:.2f} |")
 
 
 def drop_cluster(scan: Path, work: Path, name: str) -> None:
@@ -1597,7 +1659,14 @@ def main() -> None:
     )
     ap.add_argument("--drop-cluster", default="", help="re-solve without a cluster's receivers")
     ap.add_argument(
-        "--fix-at-truth", default="", help="comma-separated point/line lights fixed at the truth"
+        "--fix-at-truth",
+        default="",
+        help="comma-separated area, point or line lights fixed at the truth",
+    )
+    ap.add_argument(
+        "--fix-with-true-radiance",
+        action="store_true",
+        help="--fix-at-truth on the true per-vertex radiance instead of the HDR mesh",
     )
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
@@ -1647,7 +1716,9 @@ def main() -> None:
     if args.drop_cluster:
         drop_cluster(args.scan, args.work, args.drop_cluster)
     if args.fix_at_truth:
-        fix_at_truth(args.scan, args.work, args.fix_at_truth.split(","))
+        fix_at_truth(
+            args.scan, args.work, args.fix_at_truth.split(","), args.fix_with_true_radiance
+        )
 
 
 if __name__ == "__main__":
