@@ -228,3 +228,45 @@ def test_group_medians_match_a_sort_by_key_and_value():
     keys, counts, med = _group_medians(np.array([4, 4, 1]), np.array([1.0, 2.0, 5.0]))
     assert keys.tolist() == [1, 4] and counts.tolist() == [1, 2] and med.tolist() == [5.0, 1.5]
     assert len(_group_medians(np.zeros(0, np.int64), np.zeros(0))[0]) == 0
+
+
+def _clipped_hot_spot(box_mean: float = 0.8):
+    """One bright vertex (radiance 3) clipped in all six frames, its 3x3 box reading
+    ``box_mean`` (darker pixels beside a hot spot), and one (radiance 0.8) clipped in
+    its two brightest frames only."""
+    s = np.array([0.5, 0.6, 0.8, 1.0, 1.5, 2.0])
+    vi = np.repeat([0, 1], 6)
+    fj = np.tile(np.arange(6), 2)
+    lv1 = np.clip(np.round(0.8 * s * 255), 0, 255)
+    levels = np.repeat(np.concatenate([np.full(6, 255), lv1])[:, None], 3, axis=1)
+    obs = Observations.from_arrays(2, 6, vi, fj, levels)
+    clipped = obs.value[:, 0] == 255
+    # A box around a hot spot: the sample's linear value is under white where it clips.
+    obs.linear[clipped & (obs.vertex == 0)] = encode_linear(np.full(3, box_mean))
+    return obs, np.repeat(s[:, None], 3, axis=1)
+
+
+def test_a_vertex_clipped_everywhere_gets_the_median_its_bounds_allow():
+    obs, scales = _clipped_hot_spot()
+    first = reproject_radiance(obs, scales).radiance
+    rad = reproject_radiance(obs, scales, level_linear=LINEAR).radiance
+    # The first pass reads the clipped boxes (0.8 / t: 0.4-1.6); each clipped sample
+    # only says "at least white / t", so the censored median is the weighted median of
+    # those bounds, weighted by the levels the first pass predicts.
+    conf = np.maximum(hat_confidence(np.arange(256)), CONFIDENCE_FLOOR)
+    s = scales[:, 0]
+    pred = np.clip(np.searchsorted(LINEAR, first[0, 0] * s), 0, 255)
+    expected = brute_weighted_median(1.0 / s, conf[pred])
+    assert rad[0, 0] == pytest.approx(expected, rel=1e-6)
+    assert first[0, 0] < rad[0, 0] <= 2.0  # above the boxes, within the tightest bound
+    # A vertex whose median is not censored keeps its estimate: the unclipped frames'.
+    assert rad[1, 0] == pytest.approx(0.8, rel=0.01)
+
+
+def test_a_censored_median_never_falls_below_the_first_pass():
+    # Boxes at white: the bounds equal the samples, and the estimate is the first pass's
+    # or above it.
+    obs, scales = _clipped_hot_spot(box_mean=1.0)
+    first = reproject_radiance(obs, scales).radiance
+    rad = reproject_radiance(obs, scales, level_linear=LINEAR).radiance
+    assert np.all(rad[0] >= first[0] - 1e-12)

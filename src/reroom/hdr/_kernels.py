@@ -337,8 +337,11 @@ def reproject_medians(
     With an empty ``prior`` (shape ``(0, 3)``), ``level`` is the sample's own 8-bit
     level (the thesis). Otherwise it is the level that ``prior[i, c] / inv_scale``
     gives through the response ``level_linear``, and a clipped sample (level 255) is
-    censored (+inf in the median); a vertex whose median is then +inf keeps the
-    ``out`` it came with (the first pass's).
+    censored (+inf in the median). Where clipped samples hold half the weight or more,
+    that median is +inf: the data bound the radiance only from below, and the vertex
+    gets the smallest median they allow, each clipped sample at its bound
+    ``level_linear[255] * inv_scale`` (what the frame would have recorded at white),
+    or the ``out`` it came with (the first pass's) where that is larger.
     """
     n = offsets.shape[0] - 1
     predicted = prior.shape[0] > 0
@@ -360,6 +363,7 @@ def reproject_medians(
             continue
         vals = np.empty(m)
         wts = np.empty(m)
+        bounds = np.empty(m)
         for c in range(3):
             q = 0
             for k in range(s, e):
@@ -368,10 +372,12 @@ def reproject_medians(
                 if not np.isfinite(inv_scale[j, 0]) or (only_clean and (flags[smp] & 3) != 0):
                     continue
                 vals[q] = decode[codes[smp, c]] * inv_scale[j, c]
+                bounds[q] = vals[q]
                 level = levels[smp, c]
                 if predicted:
                     if level >= top:
                         vals[q] = np.inf
+                        bounds[q] = level_linear[top] * inv_scale[j, c]
                     level = np.searchsorted(level_linear, prior[i, c] / inv_scale[j, c])
                     level = min(max(level, 0), top)
                 wts[q] = confidence[level] * geometry[smp]
@@ -389,6 +395,25 @@ def reproject_medians(
                         break
             if np.isfinite(res):
                 out[i, c] = res
+            elif predicted and total > 0.0:
+                # Censored at the median: the smallest median the bounds allow.
+                low = _weighted_median(bounds, wts, m)
+                if low > out[i, c]:
+                    out[i, c] = low
+
+
+@nb.njit(cache=True)
+def _weighted_median(vals: np.ndarray, wts: np.ndarray, m: int) -> float:
+    """The weighted median of ``vals[:m]`` (the first value whose cumulative weight
+    reaches half the total, in ascending order)."""
+    idx = np.argsort(vals[:m])
+    half = 0.5 * wts[:m].sum()
+    acc = 0.0
+    for k in idx:
+        acc += wts[k]
+        if acc >= half:
+            return vals[k]
+    return vals[idx[m - 1]]
 
 
 @nb.njit(parallel=True, cache=True)
