@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -429,3 +430,39 @@ def test_a_sun_through_the_window_is_found_solved_and_drawn(tmp_path: Path, sunn
     flux = (env * latlong_solid_angles(env.shape[0])[..., None]).reshape(-1, 3)
     assert env.shape[0] >= 256
     assert flux.max(axis=0) == pytest.approx(np.asarray(found["irradiance"]), rel=1e-3)
+
+
+def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import reroom.invert.pipeline as pipeline
+
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="window_smooth"):
+            run_invert(tmp_path / "nothing_here", None, InvertOptions(window_smooth=bad))
+    assert not (tmp_path / "nothing_here").exists()
+
+    seen = {}
+    solve = pipeline.solve_lighting
+
+    def spy(problem, *args, **kwargs):
+        seen.update({b.name: b for b in problem.lights})
+        return solve(problem, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "solve_lighting", spy)
+    scan = _sunny_box_scan(tmp_path / "w", None)
+    opts = dataclasses.replace(FAST, window_smooth=1e3, window_sun=False)
+    result = run_invert(scan, None, opts)
+    window = seen["window0"]
+    assert window.adjacency_weights is not None
+    np.testing.assert_allclose(window.adjacency_weights, 1e3)
+    assert len(window.adjacency_weights) == len(window.adjacency)
+    # Smoother cells: the jumps between neighbouring cells are smaller than at the
+    # default weight (the same problem solved again).
+    again = run_invert(scan, tmp_path / "w_default", dataclasses.replace(opts, window_smooth=1.0))
+    i, j = window.adjacency[:, 0], window.adjacency[:, 1]
+    jumps = [
+        np.abs(c[i] - c[j]).sum()
+        for c in (np.asarray(r.solve.intensities["window0"], float) for r in (result, again))
+    ]
+    assert jumps[0] < 0.9 * jumps[1], jumps

@@ -67,6 +67,9 @@ class InvertOptions:
     ----------
     cubemap_n : int
         Cube-map cells per face edge of window light (thesis: 4, 96 cells).
+    window_smooth : float
+        Weight of the smoothness between neighbouring window cells, relative to
+        ``solve.smooth_lambda`` (1: the thesis's weak smoothness, as every light).
     bins : int
         Inclination bins of point lights, and ``theta`` bins (around the line) of line
         lights (thesis: 32).
@@ -288,6 +291,7 @@ class InvertOptions:
     """
 
     cubemap_n: int = 4
+    window_smooth: float = 1.0
     bins: int = 32
     point_splits: int = 1
     line_phi_bins: int = 3
@@ -797,6 +801,8 @@ def run_invert(
         raise ValueError(f"fill_albedo must be in (0, 1], got {options.fill_albedo}")
     if options.point_splits < 0:
         raise ValueError(f"point_splits must be >= 0, got {options.point_splits}")
+    if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
+        raise ValueError(f"window_smooth must be a finite number >= 0, got {options.window_smooth}")
     scan = Path(scan_dir)
     out = Path(out_dir) if out_dir is not None else scan / "invert"
     notes: list[str] = []
@@ -939,13 +945,15 @@ def run_invert(
             shape, shape_info = cell_shapes(fill_gaps(photos[k]), basis)
             prior_info = {**prior_info, "photo_shapes": shape_info}
             direction_weight = latlong_lookup(shape)
+        pairs = basis.adjacency()
         blocks.append(
             LightBlock(
                 light.name,
                 "window",
                 basis.size,
                 False,
-                basis.adjacency(),
+                pairs,
+                adjacency_weights=np.full(len(pairs), float(options.window_smooth)),
                 prior=prior,
                 prior_weight=prior_weight,
             )
