@@ -1391,15 +1391,19 @@ def fix_at_truth(
         if name in errors:
             new_err = (1 + errors[name]) * after[name] / base[name] - 1
             print(f"| {name} | {_pct(errors[name])} | {_pct(new_err)} |")
-    _window_cells_after(report, res, res2, min_bin_support)
+    _window_cells_after(scan, report, res, res2, min_bin_support)
 
 
-def _window_cells_after(report: dict, res, res2, min_bin_support: float) -> None:
+def _window_cells_after(scan: Path, report: dict, res, res2, min_bin_support: float) -> None:
     """Each window's cells, the run's and a re-solve's, against the truth's (luminance / k).
 
     The distribution error of both, then the cells whose true luminance is largest and
-    those the re-solve moved most: where a window's light comes from, as solved.
+    those the re-solve moved most: where a window's light comes from, as solved. With
+    cells finer than the thesis's (``cubemap_n`` a multiple of 4), also the error of both
+    summed to the 4 x 4 cells (solid-angle weighted) against the truth's 4 x 4 cells.
     """
+    from reroom.invert.evaluate import true_window_cells
+
     k = np.asarray(report["radiance_scale"], float)
     truth_of = {e["name"]: e for e in report["lights"]}
     ents = {e["name"]: e for e in light_entries(res, None, min_bin_support)}
@@ -1420,6 +1424,22 @@ def _window_cells_after(report: dict, res, res2, min_bin_support: float) -> None
             f"\n`{name}`'s cells, relative L2 (luminance / k, cells with light): the run "
             f"{100 * l2['the run']:.1f} %, re-solved {100 * l2['re-solved']:.1f} %\n"
         )
+        n = int(e2["distribution"]["n"])
+        if n > 4 and n % 4 == 0:
+            scene_dir = scan / "ground_truth" / "scene"
+            gt = json.loads((scene_dir / "scene.json").read_text())
+            t_light = next(x for x in gt["lights"] if x["name"] == truth_of[name]["truth"])
+            truth4, _ = true_window_cells(t_light, scene_dir, n=4)
+            l4 = {
+                label: distribution_relative_l2(
+                    _cells_summed(c, n, 4), truth4, k, truth4 @ LUMA > 0
+                )
+                for label, c in runs.items()
+            }
+            print(
+                f"summed to the 4 x 4 cells: the run {100 * l4['the run']:.1f} %, re-solved "
+                f"{100 * l4['re-solved']:.1f} %\n"
+            )
         lum = {label: (c / k) @ LUMA for label, c in runs.items()}
         t = truth @ LUMA
         moved = np.abs(lum["re-solved"] - lum["the run"])
@@ -1427,6 +1447,19 @@ def _window_cells_after(report: dict, res, res2, min_bin_support: float) -> None
         print("| cell | true | the run | re-solved |\n|---|---|---|---|")
         for j in dict.fromkeys(int(r) for r in rows):
             print(f"| {j} | {t[j]:.2f} | {lum['the run'][j]:.2f} | {lum['re-solved'][j]:.2f} |")
+
+
+def _cells_summed(cells: np.ndarray, n: int, coarse_n: int) -> np.ndarray:
+    """``(6 n^2, 3)`` cube cells summed to ``coarse_n`` cells per face edge: each coarse
+    cell the solid-angle weighted mean of the fine cells whose centres fall in it."""
+    from reroom.invert.basis import CubemapBasis
+
+    fine, coarse = CubemapBasis(n), CubemapBasis(coarse_n)
+    parent = coarse.cell_of(fine.cell_directions())
+    area = fine.cell_solid_angles()
+    w = np.bincount(parent, area, coarse.size)
+    cols = [np.bincount(parent, area * cells[:, j], coarse.size) for j in range(3)]
+    return np.stack(cols, 1) / np.maximum(w, 1e-300)[:, None]
 
 
 def drop_cluster(scan: Path, work: Path, name: str) -> None:
