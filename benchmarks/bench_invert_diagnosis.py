@@ -1337,14 +1337,12 @@ def fix_at_truth(
     report = evaluate_invert(scan, out)
     prob = res.problem
     k = np.asarray(report["radiance_scale"], float)
-    offsets = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])])
     order = [b.name for b in prob.lights]
     errors = _power_errors(report)
     truth_of = {e["name"]: e for e in report["lights"]}
     min_bin_support = InvertOptions(**INVERT_EXTRA).min_bin_support
     base = _powers(res, min_bin_support)
-    indirect = prob.indirect.copy()
-    fixed_cols: list[np.ndarray] = []
+    fixed: dict[int, np.ndarray] = {}
     for name in names:
         i = order.index(name)
         if prob.lights[i].kind == "area":
@@ -1354,17 +1352,9 @@ def fix_at_truth(
             true_profile = true_profile / (np.pi * area)
         else:
             true_profile = np.asarray(truth_of[name]["distribution"]["true_profile"], float)
-        cols = np.arange(offsets[i], offsets[i + 1])
-        indirect = indirect + np.asarray(prob.transfer[:, cols] @ (true_profile * k))
-        fixed_cols.append(cols)
-    keep = np.setdiff1d(np.arange(offsets[-1]), np.concatenate(fixed_cols))
-    kept = [j for j, b in enumerate(prob.lights) if b.name not in names]
-    prob2 = dataclasses.replace(
-        prob,
-        indirect=indirect,
-        transfer=prob.transfer[:, keep],
-        lights=[prob.lights[j] for j in kept],
-    )
+        fixed[i] = true_profile * k
+    kept = [j for j in range(len(prob.lights)) if j not in fixed]
+    prob2 = _with_lights_fixed(prob, fixed)
     sol2 = solve_lighting(
         prob2, res.solve_options if hasattr(res, "solve_options") else SolveOptions()
     )

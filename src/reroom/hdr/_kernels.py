@@ -382,17 +382,8 @@ def reproject_medians(
                     level = min(max(level, 0), top)
                 wts[q] = confidence[level] * geometry[smp]
                 q += 1
-            idx = np.argsort(vals)
             total = wts.sum()
-            half = 0.5 * total
-            acc = 0.0
-            res = vals[idx[m - 1]]
-            if total > 0.0:
-                for k in idx:
-                    acc += wts[k]
-                    if acc >= half:
-                        res = vals[k]
-                        break
+            res = _weighted_median(vals, wts, m) if total > 0.0 else vals.max()
             if np.isfinite(res):
                 out[i, c] = res
             elif predicted and total > 0.0:
