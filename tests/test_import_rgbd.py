@@ -603,3 +603,29 @@ def test_preview_camera_model(offset):
     (expect,), _, (inside,) = frame.project(centre[None])
     assert inside
     assert np.allclose(got, expect, atol=0.5), (got, expect)
+
+
+def test_canonical_order_depends_only_on_the_geometry() -> None:
+    """Open3D lists a fusion's vertices in a thread-dependent order; the canonical order
+    is the same for any permutation of the vertices and faces, and keeps each face's
+    winding (its vertices, in cyclic order)."""
+    from reroom.importers.fusion import canonical_order
+
+    rng = np.random.default_rng(31)
+    verts = rng.normal(size=(200, 3))
+    faces = np.array([rng.choice(200, 3, replace=False) for _ in range(300)])
+    order, f0 = canonical_order(verts, faces)
+    perm = rng.permutation(200)
+    inv = np.empty(200, int)
+    inv[perm] = np.arange(200)
+    faces_p = inv[faces][rng.permutation(300)]
+    # the same faces, listed from another of their three vertices (same winding)
+    faces_p = np.roll(faces_p, 1, axis=1)
+    order_p, f1 = canonical_order(verts[perm], faces_p)
+    np.testing.assert_array_equal(verts[order], verts[perm][order_p])
+    np.testing.assert_array_equal(f0, f1)
+    # each new face is an old one, same cyclic order
+    old = {tuple(np.roll(f, -int(np.argmin(f)))) for f in faces}
+    new_as_old = order[f0]
+    assert {tuple(np.roll(f, -int(np.argmin(f)))) for f in new_as_old} == old
+    assert np.all(np.diff(verts[order][:, 0]) >= 0)

@@ -54,6 +54,37 @@ def _clean_mesh(mesh: Any, min_component_fraction: float, min_component_triangle
     return mesh
 
 
+def canonical_order(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A fused mesh's vertices and faces in an order that depends only on the geometry.
+
+    Open3D's voxel-block grid keeps its blocks in a hash map filled by several threads,
+    so two fusions of the same frames list the same vertices in different orders (on a
+    12-frame synthetic scan: all 164,822 vertices the same, 2 of 313,491 faces
+    different, the order entirely different). Everything downstream that samples by
+    index (the solve's seeded subset of receivers, the point-light fittings) then
+    differs from run to run. Sorting fixes that: vertices lexicographically by their
+    coordinates, each face rotated to start at its smallest index (the winding kept),
+    faces lexicographically.
+
+    Returns
+    -------
+    order, faces
+        ``order`` (V,): the old index of each new vertex (``vertices[order]`` are the
+        new vertices; per-vertex attributes are reordered the same way); ``faces``
+        (F, 3): the faces on the new indices, in their new order.
+    """
+    vertices = np.asarray(vertices)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    order = np.lexsort(vertices.T[::-1])  # x first, then y, then z
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    f = rank[faces]
+    shift = np.argmin(f, axis=1)
+    f = np.take_along_axis(f, (shift[:, None] + np.arange(3)) % 3, axis=1)
+    f = f[np.lexsort(f.T[::-1])]
+    return order, f
+
+
 class TsdfFusion:
     """Colour TSDF fusion on Open3D's voxel-block grid (a sparse, hashed volume).
 

@@ -49,7 +49,13 @@ from reroom.importers.capture_io import (  # noqa: F401
     read_pose_file,
     white_border_mask,
 )
-from reroom.importers.fusion import PoseRefiner, TsdfFusion, _clean_mesh, _o3d  # noqa: F401
+from reroom.importers.fusion import (  # noqa: F401
+    PoseRefiner,
+    TsdfFusion,
+    _clean_mesh,
+    _o3d,
+    canonical_order,
+)
 from reroom.io.images import image_size, read_rgb8
 from reroom.scan.camera import Intrinsics
 from reroom.scan.scan import validate_pose, write_scan
@@ -282,6 +288,10 @@ def import_rgbd(
         )
     colors_f = np.asarray(o3d_mesh.vertex_colors, dtype=np.float64)
     vcolor = np.clip(np.round(colors_f * 255.0), 0, 255).astype(np.uint8)
+    order, faces = canonical_order(verts, faces)
+    verts = verts[order]
+    if len(vcolor) == len(order):
+        vcolor = vcolor[order]
 
     # Up direction from the cameras, refined by the mesh's planes.
     tri = verts[faces]

@@ -96,7 +96,7 @@ def fuse_depth_maps(
     are made exactly the way real captures are.
     """
     from reroom.errors import ReroomError
-    from reroom.importers.fusion import TsdfFusion
+    from reroom.importers.fusion import TsdfFusion, canonical_order
 
     fusion = TsdfFusion(intr, voxel_size, 4 * voxel_size, depth_trunc)
     gl_to_cv = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -119,4 +119,5 @@ def fuse_depth_maps(
     if len(comps) > 1:
         big = [c for c in comps if len(c.faces) >= max(50, 0.002 * len(mesh.faces))]
         mesh = trimesh.util.concatenate(big)
-    return mesh
+    order, faces = canonical_order(mesh.vertices, mesh.faces)
+    return trimesh.Trimesh(np.asarray(mesh.vertices)[order], faces, process=False)
