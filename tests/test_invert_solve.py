@@ -514,3 +514,53 @@ def test_measured_prior_is_validated() -> None:
     )
     with pytest.raises(SolveError, match="needs a chromatic light"):
         solve_lighting(problem)
+
+
+def test_lower_bounds_hold_the_cells_no_vertex_sees_and_leave_the_seen_ones() -> None:
+    """A window's cells no vertex sees come out at their lower bound (the smoothness
+    would leave them near their neighbours, below it), the bound of a seen cell below
+    its truth changes nothing, and one above its truth holds it there."""
+    opts = SolveOptions(smooth_lambda=1e-6, huber_delta=None, reweight_c=None, tolerance=1e-12)
+    problem, truth = synthetic_problem(1500, lights=("window",), seed=3)
+    true = truth.intensities["window"]
+    unseen = ~truth.seen["window"]
+    plain = solve_lighting(problem, opts).intensities["window"]
+    scale = np.abs(true).max()
+    lower = np.zeros_like(true)
+    lower[unseen] = plain[unseen] + 0.5 * scale  # above what the smoothness fills in
+    seen_low = int(np.flatnonzero(~unseen)[0])
+    lower[seen_low] = 0.5 * true[seen_low]
+    seen_high = int(np.flatnonzero(~unseen)[1])
+    lower[seen_high] = 1.5 * true[seen_high]
+    problem.lights[0] = dataclasses.replace(problem.lights[0], lower=lower)
+    got = solve_lighting(problem, opts).intensities["window"]
+    assert np.all(got >= lower - 1e-9 * scale)
+    np.testing.assert_allclose(got[unseen], lower[unseen], rtol=1e-6)
+    # (the cell held above its truth pushes its neighbours down a little)
+    np.testing.assert_allclose(got[seen_low], true[seen_low], rtol=1e-2)
+    np.testing.assert_allclose(got[seen_high], lower[seen_high], rtol=1e-6)
+
+
+def test_lower_bounds_are_validated() -> None:
+    problem, _ = synthetic_problem(200, lights=("window",), seed=3)
+    n = problem.lights[0].size
+    for bad, match in (
+        (-np.ones((n, 3)), "lower bounds >= 0"),
+        (np.ones((n - 1, 3)), "lower bounds >= 0 of shape"),
+        (np.full((n, 3), np.inf), "infinite lower bound"),
+    ):
+        problem.lights[0] = dataclasses.replace(problem.lights[0], lower=bad)
+        with pytest.raises(SolveError, match=match):
+            solve_lighting(problem)
+    problem.lights[0] = dataclasses.replace(problem.lights[0], lower=np.ones((n, 3)))
+    with pytest.raises(SolveError, match="need the joint solver"):
+        solve_lighting(problem, SolveOptions(method="alternating"))
+    # NaN and 0 mean no bound: the solve is the plain one
+    problem.lights[0] = dataclasses.replace(problem.lights[0], lower=np.full((n, 3), np.nan))
+    a = solve_lighting(problem).intensities["window"]
+    problem.lights[0] = dataclasses.replace(problem.lights[0], lower=None)
+    np.testing.assert_array_equal(a, solve_lighting(problem).intensities["window"])
+    problem, _, _ = _chain_problem()
+    problem.lights[0] = dataclasses.replace(problem.lights[0], lower=np.ones((4, 3)))
+    with pytest.raises(SolveError, match="need a chromatic light"):
+        solve_lighting(problem)

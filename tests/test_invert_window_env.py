@@ -14,6 +14,7 @@ from reroom.invert.basis import CubemapBasis
 from reroom.invert.export import latlong_from_cubemap, light_entries
 from reroom.invert.window_env import (
     WindowPhotos,
+    cell_lower_bounds,
     cell_means,
     fill_gaps,
     latlong_directions,
@@ -325,6 +326,41 @@ def test_cell_means_use_clean_texels_only(window_scan):
     # Too few clean texels: no mean.
     none, zero = cell_means(photos, basis, min_texels=10_000)
     assert np.isnan(none).all() and np.all(zero == 0)
+
+
+def test_cell_lower_bounds_never_exceed_the_truth_and_count_clipped_pixels(window_scan):
+    """What the photos prove: below each cell's true mean (unseen texels count 0, a
+    clipped one its bound), exactly the seen share of a flat cell, and the bright band
+    that saturates in every frame held at its bound, not at 0."""
+    from reroom.invert.pipeline import InvertOptions, _window_photos
+
+    root, env = window_scan
+    basis = CubemapBasis(4)
+    (photos,), _ = observe_windows(root, _room(), [WINDOW], height=H)
+    lower = cell_lower_bounds(photos, basis)
+    truth = _cell_means(env, basis)
+    assert lower.shape == (basis.size, 3) and np.all(lower >= 0)
+    # (the unsaturated texels are 8-bit readings: within a code of the truth)
+    assert np.all(lower <= truth * 1.02 + 1e-12)
+    seen = ((photos.count > 0) | (photos.saturated > 0)).ravel()
+    cell = basis.cell_of(latlong_directions(H).reshape(-1, 3))
+    assert np.all(lower[np.setdiff1d(np.arange(basis.size), cell[seen])] == 0)
+    sat_only = ((photos.saturated > 0) & (photos.count == 0)).ravel()
+    j = int(np.bincount(cell[sat_only], minlength=basis.size).argmax())
+    assert sat_only.any() and np.all(lower[j] > 0)
+    # A hand-made cell: half its texels seen at 2, one saturated texel bounded at 5.
+    hand, in_cell, sat = _photos_one_cell(2.0, 5.0)
+    lb = cell_lower_bounds(hand, basis)
+    a = latlong_solid_angles(32)
+    m = np.isfinite(hand.mean).all(-1)
+    want = (a * np.where(m, hand.mean[..., 0], 0))[in_cell].sum() + a[tuple(sat)] * 5.0
+    k = int(basis.cell_of(latlong_directions(32)[tuple(sat)][None])[0])
+    assert lb[k, 0] == pytest.approx(want / a[in_cell].sum())
+    assert np.count_nonzero(lb.max(axis=1)) == 1
+    # The pipeline reads the photos before the solve when the option asks for them.
+    notes: list[str] = []
+    opts = InvertOptions(window_photo_bounds=True)
+    assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is not None
 
 
 def test_pipeline_builds_the_window_prior_from_the_photos(window_scan, tmp_path):

@@ -506,6 +506,8 @@ def light_entries(
                 ]
             if "photo_prior" in info:  # InvertOptions.window_photo_prior
                 e["distribution"]["photo_prior"] = info["photo_prior"]
+            if "photo_bounds" in info:  # InvertOptions.window_photo_bounds
+                e["distribution"]["photo_bounds"] = info["photo_bounds"]
             if "photo_shapes" in info:  # InvertOptions.window_photo_shapes
                 e["distribution"]["photo_shapes"] = info["photo_shapes"]
             if "view" in info:  # InvertOptions.window_view_hdri

@@ -209,6 +209,12 @@ class InvertOptions:
         relative to the cells' smoothness weight ``lambda_l`` and scaled by the share of
         each cell the photos see cleanly (never saturated;
         :func:`reroom.invert.window_env.cell_means`); 0: none.
+    window_photo_bounds : bool
+        Hold each window cube cell at least as bright as the photos prove it is
+        (:func:`reroom.invert.window_env.cell_lower_bounds`: clipped pixels count at
+        their bound, unseen texels at 0; lower bounds of the joint solve). Off by
+        default: on `furnished` it lowers the tube by 3-6 points without mending its
+        colour (docs/invert.md, session 31).
     window_photo_shapes : bool
         Weight each direction of a window's transfer by the photos' luminance pattern
         within its cube cell (:func:`reroom.invert.window_env.cell_shapes`), so that a
@@ -318,6 +324,7 @@ class InvertOptions:
     texture_point_direct: bool = True
     window_photos: bool = True
     window_photo_prior: float = 0.0
+    window_photo_bounds: bool = False
     window_photo_shapes: bool = False
     window_view_hdri: str | None = None
     window_view_rotation_deg: float = 0.0
@@ -669,10 +676,14 @@ def _window_photos(
 ) -> list | None:
     """The photos' view through each window, when an option uses it before the solve.
 
-    None when neither ``window_photo_prior`` nor ``window_photo_shapes`` asks for it, or
+    None when none of ``window_photo_prior``, ``window_photo_bounds`` and
+    ``window_photo_shapes`` asks for it, or
     (with a note) when the photos cannot be read back (e.g. no ``hdr/exposures.json``).
     """
-    if not openings or (options.window_photo_prior <= 0 and not options.window_photo_shapes):
+    wanted = (
+        options.window_photo_prior > 0 or options.window_photo_bounds or options.window_photo_shapes
+    )
+    if not openings or not wanted:
         return None
     from reroom.invert.window_env import observe_windows
 
@@ -945,6 +956,15 @@ def run_invert(
             shape, shape_info = cell_shapes(fill_gaps(photos[k]), basis)
             prior_info = {**prior_info, "photo_shapes": shape_info}
             direction_weight = latlong_lookup(shape)
+        lower = None
+        if options.window_photo_bounds and photos is not None and isinstance(basis, CubemapBasis):
+            from reroom.invert.window_env import cell_lower_bounds
+
+            lower = cell_lower_bounds(photos[k], basis)
+            prior_info = {
+                **prior_info,
+                "photo_bounds": {"cells": int(np.count_nonzero(lower.max(axis=1) > 0))},
+            }
         pairs = basis.adjacency()
         blocks.append(
             LightBlock(
@@ -956,6 +976,7 @@ def run_invert(
                 adjacency_weights=np.full(len(pairs), float(options.window_smooth)),
                 prior=prior,
                 prior_weight=prior_weight,
+                lower=lower,
             )
         )
         pane = (window_of[np.asarray(mesh.faces)] == k).any(axis=1)

@@ -123,6 +123,10 @@ class LightBlock:
         uses the photos' unsaturated view through it (:mod:`reroom.invert.window_env`).
     prior_weight : ndarray, shape (size,), optional
         Weight of each element's measurement relative to ``lambda_l`` (0: none).
+    lower : ndarray, shape (size, 3), optional
+        Lower bounds on the intensities (absolute units, 0 or NaN: none), for chromatic
+        lights and the joint solver: what a window's saturated photos prove about its
+        cells (:func:`reroom.invert.window_env.cell_lower_bounds`).
     """
 
     name: str
@@ -135,6 +139,7 @@ class LightBlock:
     shape_weight: float = 0.0
     prior: np.ndarray | None = None
     prior_weight: np.ndarray | None = None
+    lower: np.ndarray | None = None
 
 
 @dataclass
@@ -194,6 +199,16 @@ class InverseProblem:
                     raise SolveError(f"light {light.name!r} needs a shape_weight >= 0")
             if light.prior_weight is not None:
                 _validate_prior(light)
+            if light.lower is not None:
+                lb = np.asarray(light.lower, float)
+                if light.monochrome:
+                    raise SolveError(f"light {light.name!r}: lower bounds need a chromatic light")
+                if lb.shape != (light.size, 3) or np.nanmin(lb, initial=0.0) < 0:
+                    raise SolveError(
+                        f"light {light.name!r} needs lower bounds >= 0 of shape ({light.size}, 3)"
+                    )
+                if np.isinf(lb).any():
+                    raise SolveError(f"light {light.name!r} has an infinite lower bound")
             if light.adjacency is not None and len(light.adjacency):
                 adj = np.asarray(light.adjacency)
                 if adj.ndim != 2 or adj.shape[1] != 2 or adj.min() < 0 or adj.max() >= light.size:
@@ -391,6 +406,8 @@ class _Layout:
     # the normal equations, smooth_chrom^T chrom_rhs (n_chrom, 3), formed once.
     chrom_rhs: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     chrom_pull: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    # Lower bounds of the chromatic intensities (n_chrom, 3), relative units (0: none).
+    chrom_lower: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def n_chrom(self) -> int:
@@ -491,6 +508,12 @@ def _layout(
         chrom_lights, chrom_offsets, chrom_local, len(chrom), lam, scale
     )
     smooth_mono, _ = _regularisation_rows(mono_lights, mono_offsets, mono_local, len(mono), lam)
+    lower = [
+        np.zeros((light.size, 3))
+        if light.lower is None
+        else np.nan_to_num(np.asarray(light.lower, float)) / scale
+        for light in chrom_lights
+    ]
     return _Layout(
         chrom_cols=np.asarray(chrom, dtype=int),
         mono_cols=np.asarray(mono, dtype=int),
@@ -500,6 +523,7 @@ def _layout(
         smooth_mono=smooth_mono,
         chrom_rhs=chrom_rhs,
         chrom_pull=np.asarray(smooth_chrom.T @ chrom_rhs).reshape(len(chrom), 3),
+        chrom_lower=np.concatenate(lower) if lower else np.zeros((0, 3)),
     )
 
 
@@ -946,6 +970,7 @@ def _solve_joint(
         ]
     )
     lo = np.zeros(n_par)
+    lo[n_rho : n_rho + 3 * kc] = lay.chrom_lower.T.ravel()  # channel-major, as x
     hi = np.full(n_par, np.inf)
     hi[:n_rho] = options.rho_max
     hi[n_rho + 3 * kc + km :] = np.pi / 2
@@ -1085,6 +1110,11 @@ def solve_lighting(
     if options.method not in METHODS:
         raise SolveError(f"unknown solve method {options.method!r}; choose from {METHODS}")
     problem.validate()
+    if options.method == "alternating" and any(
+        light.lower is not None and np.nan_to_num(np.asarray(light.lower, float)).max() > 0
+        for light in problem.lights
+    ):
+        raise SolveError("lower bounds on intensities need the joint solver (method='joint')")
     t0 = time.perf_counter()
     notes: list[str] = []
     n_clusters = len(problem.cluster_names)

@@ -37,7 +37,9 @@ only where the light comes from *within* a cell changes, and the directions no p
 look as before.
 
 :func:`cell_means` gives the solve the photos' radiance of the cells they see cleanly
-(no saturated sample in the cell), for ``InvertOptions.window_photo_prior``.
+(no saturated sample in the cell), for ``InvertOptions.window_photo_prior``;
+:func:`cell_lower_bounds` what their pixels, clipped ones included, prove about every
+cell, for ``InvertOptions.window_photo_bounds``.
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ from reroom.invert.windows import WindowOpening, rays_through_windows
 __all__ = [
     "WindowPhotos",
     "WindowView",
+    "cell_lower_bounds",
     "cell_means",
     "cell_shapes",
     "fill_gaps",
@@ -492,6 +495,36 @@ def cell_means(
         means[ok, c] = total[ok] / a_clean[ok]
     fraction = np.where(ok, a_clean / np.maximum(a_cell, 1e-300), 0.0)
     return means, fraction
+
+
+def cell_lower_bounds(photos: WindowPhotos, basis: CubemapBasis) -> np.ndarray:
+    """What the photos prove about each cube cell's mean radiance: a lower bound.
+
+    Each texel the photos saw counts at the larger of its unsaturated samples' mean and
+    its saturated samples' bound (a clipped pixel says only "at least this bright"),
+    each texel no photo saw at 0, and the cell's bound is their solid-angle weighted
+    mean over the whole cell. It is weak where a bright sky is clipped (a few per cent
+    of the truth on `furnished`) and nearer the truth in the dim cells near the horizon,
+    which the solve can otherwise leave at 0 (docs/invert.md, session 31).
+
+    Returns
+    -------
+    ndarray, shape (basis.size, 3)
+        Radiance (HDR mesh units) per cell; 0 where the photos see nothing of it.
+    """
+    h = photos.height
+    cell = basis.cell_of(latlong_directions(h).reshape(-1, 3))
+    area = latlong_solid_angles(h).ravel()
+    mean = photos.mean.reshape(-1, 3)
+    unsat = np.isfinite(mean).all(axis=1) & (photos.count.ravel() > 0)
+    value = np.maximum(
+        np.where(unsat[:, None], np.nan_to_num(mean), 0.0), photos.bound.reshape(-1, 3)
+    )
+    a_cell = np.bincount(cell, weights=area, minlength=basis.size)
+    total = np.stack(
+        [np.bincount(cell, weights=area * value[:, c], minlength=basis.size) for c in range(3)], 1
+    )
+    return total / np.maximum(a_cell, 1e-300)[:, None]
 
 
 def cell_shapes(
