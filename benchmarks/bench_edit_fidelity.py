@@ -209,12 +209,17 @@ def render_truth_cached(
 SURFACES = {0: "wall", 1: "floor", 2: "ceiling"}
 
 
-def surface_map(mesh, labels: np.ndarray, c2w: np.ndarray, intr) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel of a view: near an edge (bool) and the layout label of the surface seen.
+def surface_map(
+    mesh, labels: np.ndarray, c2w: np.ndarray, intr, openings: list | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel of a view: near an edge (bool), the layout label of the surface seen, and
+    whether it looks out through a window (bool, dilated by a pixel: its frame's edge).
 
     A pixel is near an edge within one pixel of a 5 % depth jump or a 30° turn of the
     normal between 4-neighbours (rays through the pixel centres, cast on the scan mesh);
-    the label is its hit face's first vertex's (-1: nothing hit).
+    the label is its hit face's first vertex's (-1: nothing hit); a pixel looks out when
+    its ray crosses one of ``openings`` (:class:`reroom.invert.windows.WindowOpening`,
+    the recovered windows) before it hits the mesh.
     """
     from scipy import ndimage
 
@@ -243,11 +248,50 @@ def surface_map(mesh, labels: np.ndarray, c2w: np.ndarray, intr) -> tuple[np.nda
             edge[:, 1:] |= e
     faces = np.asarray(mesh.faces)
     label = np.where(hits.hit, labels[faces[np.maximum(hits.face, 0), 0]], -1).reshape(h, w)
-    return ndimage.binary_dilation(edge), label
+    through = np.zeros((h, w), bool)
+    if openings:
+        from reroom.invert.windows import rays_through_windows
+
+        t_hit = np.where(hits.hit, hits.t, np.inf)
+        through = (rays_through_windows(o, d, t_hit, openings) >= 0).reshape(h, w)
+        through = ndimage.binary_dilation(through)
+    return ndimage.binary_dilation(edge), label, through
 
 
-def error_breakdown(ours: np.ndarray, tru: np.ndarray, near_edge: np.ndarray, label) -> dict:
-    """Where a view's squared HDR error is: near edges, and on each surface elsewhere."""
+def window_openings(scan_dir: Path) -> list:
+    """The recovered windows of a run (``invert/scene.json``), as openings."""
+    from reroom.invert.windows import WindowOpening
+
+    doc = json.loads((scan_dir / "invert" / "scene.json").read_text())
+    out = []
+    for light in doc.get("lights", []):
+        if light.get("type") != "window":
+            continue
+        g = light["geometry"]
+        out.append(
+            WindowOpening(
+                light["name"],
+                *(np.asarray(g[k], float) for k in ("centre", "half_u", "half_v", "normal")),
+            )
+        )
+    return out
+
+
+#: The brightest pixels outside the windows, apart: above this percentile of the truth's
+#: luminance there (in the truth or in ours), dilated by a pixel. Where a view sees an
+#: emitter directly (the tube, the panel's edge on the 160x120 `furnished` views) that is
+#: the emitter; elsewhere the brightest pools of light.
+EMITTER_PERCENTILE = 99.5
+
+
+def error_breakdown(
+    ours: np.ndarray, tru: np.ndarray, near_edge: np.ndarray, label, through=None
+) -> dict:
+    """Where a view's squared HDR error is: near edges, and on each surface elsewhere;
+    and, apart, the view out through the windows, the emitters seen directly and the
+    rest (the room's surfaces)."""
+    from scipy import ndimage
+
     se = ((ours - tru) ** 2).sum(-1)
     total = max(float(se.sum()), 1e-300)
     off = ~near_edge
@@ -256,6 +300,21 @@ def error_breakdown(ours: np.ndarray, tru: np.ndarray, near_edge: np.ndarray, la
         "edge_error_share": float(se[near_edge].sum() / total),
         "rel_rmse_off_edges": float(np.sqrt(se[off].sum() / max((tru[off] ** 2).sum(), 1e-300))),
     }
+    through = np.zeros(se.shape, bool) if through is None else through
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    lt, lo = tru @ lum, ours @ lum
+    cut = np.percentile(lt[~through], EMITTER_PERCENTILE) if (~through).any() else np.inf
+    emitters = ndimage.binary_dilation((lt > cut) | (lo > cut)) & ~through
+    rest = ~through & ~emitters
+    out["window_pixel_share"] = float(through.mean())
+    out["window_error_share"] = float(se[through].sum() / total)
+    out["emitter_error_share"] = float(se[emitters].sum() / total)
+    out["rel_rmse_rest"] = float(np.sqrt(se[rest].sum() / max((tru[rest] ** 2).sum(), 1e-300)))
+    for name, m in (("window", through), ("emitter", emitters)):
+        t = tru[m].sum(axis=0)
+        out[f"{name}_ratio_of_means"] = (
+            (ours[m].sum(axis=0) / t).tolist() if m.any() and np.all(t > 0) else None
+        )
     for k, name in {**SURFACES, 255: "other"}.items():
         on = off & (label == k)
         out[f"{name}_error_share_off_edges"] = float(se[on].sum() / total)
@@ -366,7 +425,10 @@ def main() -> None:
     vert_labels = np.asarray(
         read_ply(scan_dir / "layout" / "layout_labels.ply").vertex_attributes["label"]
     ).reshape(-1)
-    maps = {v["view"]: surface_map(scan.mesh, vert_labels, v["c2w"], v["intr"]) for v in views}
+    openings = window_openings(scan_dir)
+    maps = {
+        v["view"]: surface_map(scan.mesh, vert_labels, v["c2w"], v["intr"], openings) for v in views
+    }
     cams_json = [
         {
             "name": v["view"],
@@ -569,6 +631,23 @@ def main() -> None:
                                for n in ("wall", "floor", "ceiling", "other")) + " | "
                   + " / ".join(_f3(q.get(f"{n}_ratio_of_means_off_edges"))
                                for n in ("wall", "floor", "ceiling")) + " |")  # fmt: skip
+    print("\nThe view out through the windows, the brightest other pixels (the top")
+    print(
+        f"{100 - EMITTER_PERCENTILE:g} %, dilated by one: the emitters seen directly where a "
+        "view has them) and the rest:\n"
+    )
+    print("| edit | view | window pixels | window's error share | brightest's error share "
+          "| RMSE of the rest | window ours / truth | brightest ours / truth |\n"
+          "|---|---|---|---|---|---|---|---|")  # fmt: skip
+    for r in results:
+        for q in r["per_view"]:
+            ratios = [
+                "-" if q.get(k) is None else "/".join(f"{x:.2f}" for x in q[k])
+                for k in ("window_ratio_of_means", "emitter_ratio_of_means")
+            ]
+            print(f"| {r['edit']} | {q['view']} | {_pc(q['window_pixel_share'])} "
+                  f"| {_pc(q['window_error_share'])} | {_pc(q['emitter_error_share'])} "
+                  f"| {_pc(q['rel_rmse_rest'])} | {ratios[0]} | {ratios[1]} |")  # fmt: skip
     shares = [(r["edit"], q) for r in results for q in r["per_view"] if "light_share_truth" in q]
     if shares:
         print("\nThe switched-off lights' share of each view's light (1 - off / unedited, Rec. 709")
