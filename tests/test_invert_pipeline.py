@@ -12,6 +12,7 @@ import trimesh
 
 from reroom.errors import ScanError
 from reroom.invert.pipeline import InvertOptions, run_invert
+from reroom.invert.solve import SolveOptions
 from reroom.io.mesh import read_ply, write_ply
 
 
@@ -440,6 +441,10 @@ def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="window_smooth"):
             run_invert(tmp_path / "nothing_here", None, InvertOptions(window_smooth=bad))
+    # the photos' lower bounds need the joint solver: refused before any work
+    alternating = InvertOptions(window_photo_bounds=True, solve=SolveOptions(method="alternating"))
+    with pytest.raises(ValueError, match="window_photo_bounds needs the joint solver"):
+        run_invert(tmp_path / "nothing_here", None, alternating)
     assert not (tmp_path / "nothing_here").exists()
 
     seen = {}

@@ -800,6 +800,8 @@ def run_invert(
     from reroom.invert.export import write_outputs
 
     options = options or InvertOptions()
+    if options.window_photo_bounds and options.solve.method == "alternating":
+        raise ValueError("window_photo_bounds needs the joint solver: set solve.method to 'joint'")
     if options.albedo_footprint_rings < 0:
         raise ValueError(
             f"albedo_footprint_rings must be >= 0, got {options.albedo_footprint_rings}"
