@@ -300,6 +300,7 @@ def window_photos(scan: Path) -> None:
     from reroom.invert.basis import CubemapBasis
     from reroom.invert.evaluate import true_window_cells
     from reroom.invert.window_env import (
+        cell_lower_bounds,
         latlong_directions,
         latlong_solid_angles,
         observe_windows,
@@ -329,10 +330,10 @@ def window_photos(scan: Path) -> None:
     cell = basis.cell_of(latlong_directions(128).reshape(-1, 3))
     area = latlong_solid_angles(128).ravel()
     mean = ph.mean.reshape(-1, 3) / k
-    bound = ph.bound.reshape(-1, 3) / k
     cnt, sat = ph.count.ravel(), ph.saturated.ravel()
     seen = (cnt > 0) | (sat > 0)
     lum = LUMA
+    lower = cell_lower_bounds(ph, basis) / k
     print(
         f"{stats['samples'][0]} samples through the window, {stats['saturated'][0]} saturated; "
         f"k = {np.round(k, 3).tolist()}; {int(shown.sum())} cells shown\n"
@@ -346,8 +347,7 @@ def window_photos(scan: Path) -> None:
         a_cell = area[m].sum()
         s = m & seen
         u = m & (cnt > 0)
-        value = np.maximum(np.where((cnt > 0)[:, None], np.nan_to_num(mean), 0.0), bound)
-        lb = (area[s, None] * value[s]).sum(axis=0) / a_cell
+        lb = lower[j]
         um = (area[u, None] * mean[u]).sum(axis=0) / max(area[u].sum(), 1e-12)
         tl = float(truth[j] @ lum)
         print(
