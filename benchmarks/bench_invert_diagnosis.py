@@ -99,6 +99,11 @@ reads ``ground_truth/``, which the estimate never does.
     and each window's cells (distribution error; the brightest true cells and the cells
     the re-solve moved most, luminance / k). ``--fix-with-true-radiance``: the same on
     the true per-vertex radiance instead of the HDR mesh.
+``--fix-window-cells``
+    ``reroom invert`` once, then its problem re-solved with some of the window's cells
+    fixed at the truth (those the photos see cleanly in part, those any photo sees, those
+    none sees, every lit one): the other lights' power errors, and the line light's red
+    over blue (its power error ratio).
 ``--per-light NAME``
     The truth run (true radiance, true lights) split light by light at its receivers:
     each true light path-traced alone (depth 2) and ``E_ind`` against the path tracer's
@@ -288,6 +293,26 @@ def _invert(scan: Path, out: Path, radiance=None, solve: SolveOptions | None = N
     return res
 
 
+def _true_window_photos(scan: Path):
+    """The photos seen through the truth's first window (its true opening, 128-row map):
+    ``(truth light, WindowPhotos, stats, HDR mesh)``, or None without a window."""
+    from reroom.invert.window_env import observe_windows
+    from reroom.invert.windows import WindowOpening
+
+    gt = json.loads((scan / "ground_truth" / "scene" / "scene.json").read_text())
+    wins = [x for x in gt["lights"] if x["type"] == "window" and x.get("on", True)]
+    if not wins:
+        return None
+    t = wins[0]
+    c = np.asarray(t["corners"], float)
+    opening = WindowOpening(
+        t["name"], c.mean(axis=0), (c[1] - c[0]) / 2, (c[3] - c[0]) / 2, np.asarray(t["normal"])
+    )
+    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
+    (ph,), stats = observe_windows(scan, mesh, [opening], height=128)
+    return t, ph, stats, mesh
+
+
 def window_photos(scan: Path) -> None:
     """What the photos seen through the (first) window tell about its cube cells.
 
@@ -303,23 +328,13 @@ def window_photos(scan: Path) -> None:
         cell_lower_bounds,
         latlong_directions,
         latlong_solid_angles,
-        observe_windows,
     )
-    from reroom.invert.windows import WindowOpening
-    from reroom.io.mesh import read_ply
 
-    gt = json.loads((scan / "ground_truth" / "scene" / "scene.json").read_text())
-    wins = [x for x in gt["lights"] if x["type"] == "window" and x.get("on", True)]
-    if not wins:
+    found = _true_window_photos(scan)
+    if found is None:
         print("no window in the truth")
         return
-    t = wins[0]
-    c = np.asarray(t["corners"], float)
-    opening = WindowOpening(
-        t["name"], c.mean(axis=0), (c[1] - c[0]) / 2, (c[3] - c[0]) / 2, np.asarray(t["normal"])
-    )
-    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
-    (ph,), stats = observe_windows(scan, mesh, [opening], height=128)
+    t, ph, stats, mesh = found
     true_rad, _, _ = _truth(scan)
     lbar = np.asarray(mesh.vertex_attributes["radiance"], float)
     ok = np.asarray(mesh.vertex_attributes["observed"]).astype(bool)
@@ -1384,6 +1399,102 @@ def fix_at_truth(
     _window_cells_after(scan, report, res, res2, min_bin_support)
 
 
+def _with_cells_fixed(problem, block: int, fixed: np.ndarray, values: np.ndarray):
+    """``problem`` with the elements ``fixed`` (bool, the block's size) of light ``block``
+    held at ``values`` (moved into ``E_ind``), its smoothness pairs and priors kept for
+    the rest."""
+    import scipy.sparse as sp
+
+    f = sp.csr_matrix(problem.transfer)
+    off = np.concatenate([[0], np.cumsum([b.size for b in problem.lights])]).astype(int)
+    e_fix = np.asarray(f[:, off[block] + np.flatnonzero(fixed)] @ values[fixed])
+    free = np.flatnonzero(~fixed)
+    keep = np.concatenate(
+        [np.arange(off[block]), off[block] + free, np.arange(off[block + 1], off[-1])]
+    )
+    b = problem.lights[block]
+    renumber = -np.ones(b.size, int)
+    renumber[free] = np.arange(len(free))
+    adj, wts = b.adjacency, b.adjacency_weights
+    if adj is not None:
+        both = ~fixed[adj[:, 0]] & ~fixed[adj[:, 1]]
+        adj = renumber[adj[both]]
+        wts = None if wts is None else np.asarray(wts)[both]
+    part = {
+        k: None if getattr(b, k) is None else np.asarray(getattr(b, k))[free]
+        for k in ("prior", "prior_weight", "lower")
+    }
+    lights = list(problem.lights)
+    lights[block] = dataclasses.replace(
+        b, size=len(free), adjacency=adj, adjacency_weights=wts, **part
+    )
+    return dataclasses.replace(
+        problem, indirect=problem.indirect + e_fix, transfer=f[:, keep], lights=lights
+    )
+
+
+def fix_window_cells(scan: Path, work: Path) -> None:
+    """The run's problem re-solved with some of the (first) window's cells fixed at the
+    truth: those the photos see cleanly in part (>= 8 texels unsaturated and never
+    saturated), those any photo sees, those none sees, and every lit cell. Printed: each
+    other light's power error (against what leaves its fitting), scaled from the run's
+    evaluation by the re-solve's ratio, and the tube's red over blue; which cells a
+    light's colour depends on (docs/invert.md, session 31)."""
+    from reroom.invert.basis import CubemapBasis
+    from reroom.invert.window_env import latlong_directions
+
+    res = _invert(scan, work / "fix_window_cells")
+    report = evaluate_invert(scan, work / "fix_window_cells")
+    prob = res.problem
+    k = np.asarray(report["radiance_scale"], float)
+    wi = next(i for i, b in enumerate(prob.lights) if b.kind == "window")
+    wname = prob.lights[wi].name
+    truth_of = {e["name"]: e for e in report["lights"]}
+    true_cells = np.asarray(truth_of[wname]["distribution"]["true_cells"], float) * k
+    basis = CubemapBasis(res.cubemap_n)
+    _, ph, _, _ = _true_window_photos(scan)
+    cell = basis.cell_of(latlong_directions(ph.height).reshape(-1, 3))
+    unsat = np.isfinite(ph.mean.reshape(-1, 3)).all(axis=1) & (ph.count.ravel() > 0)
+    clean = unsat & (ph.saturated.ravel() == 0)
+    seen = (ph.count.ravel() > 0) | (ph.saturated.ravel() > 0)
+    n_clean = np.bincount(cell[clean], minlength=basis.size)
+    n_seen = np.bincount(cell[seen], minlength=basis.size)
+    lit = true_cells @ LUMA > 0
+    errors = _power_errors(report)
+    min_bin_support = InvertOptions(**INVERT_EXTRA).min_bin_support
+    base = _powers(res, min_bin_support)
+    others = [n for n in errors if n != wname]
+    line = next((b.name for b in prob.lights if b.kind == "line"), None)
+    print(f"| `{wname}`'s cells fixed at the truth | cells | " + " | ".join(others), end="")
+    print(" | line red / blue |" if line else " |")
+    print("|---|---|" + "---|" * (len(others) + (1 if line else 0)))
+    variants = {
+        "none (the run)": np.zeros(basis.size, bool),
+        "seen cleanly in part (>= 8 clean texels)": (n_clean >= 8) & lit,
+        "seen by any photo": (n_seen > 0) & lit,
+        "seen by no photo": (n_seen == 0) & lit,
+        "every lit cell": lit,
+    }
+    for label, sub in variants.items():
+        if sub.any():
+            sol = solve_lighting(
+                _with_cells_fixed(prob, wi, sub, true_cells),
+                res.solve_options if hasattr(res, "solve_options") else SolveOptions(),
+            )
+            full = np.array(true_cells)
+            full[~sub] = sol.intensities[wname]
+            sol = dataclasses.replace(sol, intensities={**sol.intensities, wname: full})
+            after = _powers(dataclasses.replace(res, solve=sol), min_bin_support)
+            err = {n: (1 + errors[n]) * after[n] / base[n] - 1 for n in others}
+        else:
+            err = {n: errors[n] for n in others}
+        row = f"| {label} | {int(sub.sum())} | " + " | ".join(_pct(err[n]) for n in others)
+        if line:
+            e = 1 + err[line]
+            row += f" | {e[0] / e[2]:.2f}"
+        print(row + " |", flush=True)
+
+
 def _window_cells_after(scan: Path, report: dict, res, res2, min_bin_support: float) -> None:
     """Each window's cells, the run's and a re-solve's, against the truth's (luminance / k).
 
@@ -1691,6 +1802,11 @@ def main() -> None:
         action="store_true",
         help="--fix-at-truth on the true per-vertex radiance instead of the HDR mesh",
     )
+    ap.add_argument(
+        "--fix-window-cells",
+        action="store_true",
+        help="re-solve with the window's cells fixed at the truth, by what the photos see",
+    )
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel for --fireflies")
     args = ap.parse_args()
     DECIMALS[0] = args.decimals
@@ -1738,6 +1854,8 @@ def main() -> None:
         per_light(args.scan, args.work, args.per_light)
     if args.drop_cluster:
         drop_cluster(args.scan, args.work, args.drop_cluster)
+    if args.fix_window_cells:
+        fix_window_cells(args.scan, args.work)
     if args.fix_at_truth:
         fix_at_truth(
             args.scan, args.work, args.fix_at_truth.split(","), args.fix_with_true_radiance
