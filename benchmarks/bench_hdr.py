@@ -268,6 +268,18 @@ def bench_accuracy(args, scan: Path | None = None) -> dict:
             f"{r['median_ratio']:.4f}; by label: "
             + ", ".join(f"{k} {_pct(v)} %" for k, v in r["by_label"].items())
         )
+    if r.get("ratio_of_sums"):
+        print(
+            f"ratio of sums ours / truth over {r['ratio_of_sums_vertices']} observed diffuse "
+            "vertices (r/g/b; the truth's noise cancels): "
+            + "/".join(f"{v:.3f}" for v in r["ratio_of_sums"])
+            + "; by label: "
+            + ", ".join(
+                f"{k} " + "/".join(f"{v:.3f}" for v in vals)
+                for k, vals in r["ratio_of_sums_by_label"].items()
+                if vals
+            )
+        )
     print(
         f"run_hdr wall time {wall:.1f} s: "
         + ", ".join(f"{k} {v:.1f}" for k, v in res.timings.items())

@@ -12,7 +12,7 @@ import pytest
 
 from reroom.errors import ReroomError, ScanError
 from reroom.hdr import HdrOptions, SolveOptions, run_hdr
-from reroom.hdr.evaluate import evaluate_hdr
+from reroom.hdr.evaluate import Truth, evaluate_hdr, radiance_errors
 from reroom.hdr.synthetic import box_room, write_projected_scan
 from reroom.hdr.vertex_exr import read_vertex_exr
 from reroom.io.mesh import read_ply
@@ -112,9 +112,29 @@ def test_exposures_and_radiance_match_the_truth(scan_dir, result):
     assert ours["exposure_ratio_error"]["median"] < 0.01
     assert ours["radiance_error"]["median"] < 0.03
     assert ours["radiance_error"]["vertices"] > 100
+    assert np.allclose(ours["radiance_error"]["ratio_of_sums"], 1.0, atol=0.03)
     assert set(ev["methods"]) == {"ours", "frame-to-frame", "frame-to-model"}
     assert (out / "evaluation.json").is_file()
     assert (out / "report" / "hdr_exposures_truth.png").is_file()
+
+
+def test_ratio_of_sums_sees_a_bias_through_a_noisy_truth():
+    # Truth with 15 % Monte-Carlo noise per vertex: no vertex is precise to 2 %, so the
+    # per-vertex error is empty, but the ratio of sums still finds a 10 % bias in red.
+    rng = np.random.default_rng(3)
+    n = 20_000
+    exact = rng.uniform(0.1, 1.0, (n, 3))
+    noisy = exact * (1 + 0.15 * rng.standard_normal((n, 3)))
+    noisy = np.abs(noisy)
+    label = np.where(np.arange(n) < n // 2, 0, 1)
+    truth = Truth(np.ones((1, 3)), noisy, 0.15 * noisy, label, {"wall": 0, "floor": 1})
+    ours = exact * np.array([1.1, 1.0, 1.0])
+    ours[label == 1] *= np.array([1.0, 1.0, 0.9]) / np.array([1.1, 1.0, 1.0])
+    r = radiance_errors(ours, np.ones(n, bool), truth, np.ones(3), np.ones(n, bool))
+    assert r["vertices"] == 0 and r["median"] is None
+    assert r["ratio_of_sums_vertices"] == n
+    np.testing.assert_allclose(r["ratio_of_sums_by_label"]["wall"], [1.1, 1.0, 1.0], atol=0.01)
+    np.testing.assert_allclose(r["ratio_of_sums_by_label"]["floor"], [1.0, 1.0, 0.9], atol=0.01)
 
 
 def test_estimation_never_reads_ground_truth(scan_dir, result, tmp_path):
