@@ -441,6 +441,8 @@ def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="window_smooth"):
             run_invert(tmp_path / "nothing_here", None, InvertOptions(window_smooth=bad))
+        with pytest.raises(ValueError, match="normal_radius"):
+            run_invert(tmp_path / "nothing_here", None, InvertOptions(normal_radius=bad))
     # the photos' lower bounds need the joint solver: refused before any work
     alternating = InvertOptions(window_photo_bounds=True, solve=SolveOptions(method="alternating"))
     with pytest.raises(ValueError, match="window_photo_bounds needs the joint solver"):

@@ -35,6 +35,7 @@ from reroom.invert.line_fixture import (
     line_open_fraction,
     scan_fixture_caster,
 )
+from reroom.invert.normals import smoothed_vertex_normals
 from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -178,6 +179,16 @@ class InvertOptions:
         vertex cannot match the radiance the photos show around it. 0: keep all.
     near_max_fraction : float
         See ``near_distance``.
+    normal_radius : float
+        Metres. Every transfer takes its receivers' normals averaged over the faces
+        within this radius that agree with them
+        (:func:`reroom.invert.normals.smoothed_vertex_normals`) instead of the one-ring
+        normals (0, the default). A fused scan's one-ring normals carry its noise (the
+        walls of a 24-frame 160x120 `furnished` scan lean 15° in the median), which the
+        solve turns into dim lights and bright albedos; 0.1 took that scan's truth run
+        from wall +6/+9/+11 %, floor +21/+28/+36 % to +1/+2/+2 %, +6/+9/+10 %, but the
+        tube from +5/−11/−18 % to +41/+28/+19 % (docs/invert.md, "Session 32"). Off by
+        default until it is measured on the issue's scan.
     min_bin_support : float
         A point or line light's bin whose summed transfer over the clustered receivers
         is below this fraction of its best-seen bin's is *poorly seen*: its solved value
@@ -318,6 +329,7 @@ class InvertOptions:
     point_clearance: float = 0.3
     near_distance: float = 0.05
     near_max_fraction: float = 0.15
+    normal_radius: float = 0.0
     min_bin_support: float = 0.01
     textures: bool = True
     texel: float | None = None
@@ -816,6 +828,10 @@ def run_invert(
         raise ValueError(f"point_splits must be >= 0, got {options.point_splits}")
     if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
         raise ValueError(f"window_smooth must be a finite number >= 0, got {options.window_smooth}")
+    if not (np.isfinite(options.normal_radius) and options.normal_radius >= 0):
+        raise ValueError(
+            f"normal_radius must be a finite number of metres >= 0, got {options.normal_radius}"
+        )
     scan = Path(scan_dir)
     out = Path(out_dir) if out_dir is not None else scan / "invert"
     notes: list[str] = []
@@ -864,7 +880,11 @@ def run_invert(
         )
         for w in wins
     ]
-    normals = vertex_normals(mesh)
+    normals = (
+        smoothed_vertex_normals(mesh, options.normal_radius)
+        if options.normal_radius > 0
+        else vertex_normals(mesh)
+    )
     has_normal = np.linalg.norm(normals, axis=1) > 0
     receivers = np.flatnonzero(observed & ~on_light & has_normal)
     if len(receivers) == 0:

@@ -1,0 +1,78 @@
+"""Receiver normals averaged over a radius (reroom.invert.normals)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from reroom.hdr.observe import vertex_normals
+from reroom.invert.normals import smoothed_vertex_normals
+
+
+def _noisy_grid(n: int = 60, step: float = 0.03, noise: float = 0.006, seed: int = 0):
+    """A flat 1.8 m square in z = 0 (normal +z) with its vertices jittered in z, as a
+    TSDF leaves a wall."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.arange(n) * step, np.arange(n) * step, indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), rng.normal(0, noise, n * n)], 1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    f = np.concatenate(
+        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)]
+    )
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def _tilt_deg(normals: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(normals @ axis, -1.0, 1.0)))
+
+
+def test_a_noisy_plane_gets_its_plane_normal_back():
+    mesh = _noisy_grid()
+    inner = np.all((mesh.vertices[:, :2] > 0.2) & (mesh.vertices[:, :2] < 1.55), axis=1)
+    z = np.array([0.0, 0.0, 1.0])
+    ring = _tilt_deg(vertex_normals(mesh)[inner], z)
+    smooth = _tilt_deg(smoothed_vertex_normals(mesh, 0.1)[inner], z)
+    assert np.median(ring) > 5.0  # the noise the filter is for
+    assert np.median(smooth) < 0.25 * np.median(ring)
+    assert np.allclose(np.linalg.norm(smoothed_vertex_normals(mesh, 0.1), axis=1), 1.0)
+
+
+def test_radius_zero_is_the_one_ring_and_bad_values_are_refused():
+    mesh = _noisy_grid(n=10)
+    np.testing.assert_array_equal(smoothed_vertex_normals(mesh, 0.0), vertex_normals(mesh))
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="radius"):
+            smoothed_vertex_normals(mesh, bad)
+    with pytest.raises(ValueError, match="min_agreement"):
+        smoothed_vertex_normals(mesh, 0.1, min_agreement=2.0)
+    with pytest.raises(ValueError, match="iterations"):
+        smoothed_vertex_normals(mesh, 0.1, iterations=0)
+
+
+def test_a_crease_stays_sharp():
+    # A floor (normal +z) meeting a wall (normal +x) at a right angle: a floor vertex
+    # 3 cm from the corner must keep the floor's normal, not lean toward the wall's,
+    # though the wall's faces are within the radius.
+    box = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
+    box = box.subdivide_to_size(0.03)
+    box = trimesh.Trimesh(box.vertices, box.faces, process=True)
+    n = smoothed_vertex_normals(box, 0.1)
+    ring = vertex_normals(box)
+    v = box.vertices
+    top_near_edge = (
+        (np.abs(v[:, 2] - 1.0) < 1e-9)
+        & (np.abs(v[:, 1]) < 0.9)
+        & (np.abs(v[:, 0] - 1.0) < 0.05)
+        & (np.abs(v[:, 0] - 1.0) > 0.0)
+    )
+    assert top_near_edge.sum() > 10
+    assert np.all(_tilt_deg(n[top_near_edge], np.array([0.0, 0.0, 1.0])) < 1.0)
+    # and the wall's vertices beside the same edge keep the wall's
+    side_near_edge = (
+        (np.abs(v[:, 0] - 1.0) < 1e-9) & (np.abs(v[:, 1]) < 0.9) & (np.abs(v[:, 2] - 1.0) < 0.05)
+    ) & (np.abs(v[:, 2] - 1.0) > 0.0)
+    assert side_near_edge.sum() > 10
+    assert np.all(_tilt_deg(n[side_near_edge], np.array([1.0, 0.0, 0.0])) < 1.0)
+    assert not np.allclose(ring, n)  # the one-ring normals of the edges are 45°
