@@ -473,3 +473,38 @@ def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
         for c in (np.asarray(r.solve.intensities["window0"], float) for r in (result, again))
     ]
     assert jumps[0] < 0.9 * jumps[1], jumps
+
+
+def test_normal_radius_gives_the_transfer_smoothed_normals(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import reroom.invert.pipeline as pipeline
+    from reroom.invert.normals import smoothed_vertex_normals
+
+    # the glowing box with its vertices jittered along their normals, as a fused scan
+    scan = _box_scan(tmp_path)
+    mesh = read_ply(scan / "hdr" / "hdr_mesh.ply")
+    rng = np.random.default_rng(5)
+    ring = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
+    jittered = np.asarray(mesh.vertices) + ring * rng.normal(0, 0.004, (len(ring), 1))
+    noisy = trimesh.Trimesh(jittered, mesh.faces, process=False)
+    attrs = {k: np.asarray(v) for k, v in mesh.vertex_attributes.items()}
+    write_ply(scan / "hdr" / "hdr_mesh.ply", noisy, attrs)
+    labels = read_ply(scan / "layout" / "layout_labels.ply")
+    write_ply(scan / "layout" / "layout_labels.ply", noisy, dict(labels.vertex_attributes))
+
+    seen = {}
+    transfer = pipeline.hemisphere_transfer
+
+    def spy(caster, m, sub, normals, *args, **kwargs):
+        seen["normals"] = np.array(normals)
+        return transfer(caster, m, sub, normals, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "hemisphere_transfer", spy)
+    run_invert(scan, tmp_path / "smooth", dataclasses.replace(FAST, normal_radius=0.15))
+    expected = smoothed_vertex_normals(read_ply(scan / "hdr" / "hdr_mesh.ply"), 0.15)
+    np.testing.assert_allclose(seen["normals"], expected)
+    report = json.loads((tmp_path / "smooth" / "report.json").read_text())
+    assert report["options"]["normal_radius"] == 0.15
+    run_invert(scan, tmp_path / "ring", FAST)
+    assert not np.allclose(seen["normals"], expected)

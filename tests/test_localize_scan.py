@@ -416,6 +416,9 @@ def test_downward_light_lights_only_what_is_below_it():
 def test_unknown_albedo_update_mode_is_rejected(tmp_path: Path):
     with pytest.raises(ValueError, match="search_albedo_update"):
         localize_scan(tmp_path, ScanLocalizeOptions(search_albedo_update="sometimes"))
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="normal_radius"):
+            localize_scan(tmp_path, ScanLocalizeOptions(normal_radius=bad))
 
 
 def test_discovery_gain_refits_the_known_lights():

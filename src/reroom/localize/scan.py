@@ -212,6 +212,10 @@ class ScanLocalizeOptions:
         Scale of the soft-L1 loss, as a fraction of the median ``pi L``.
     time_limit:
         Seconds; the search stops adding lights after this.
+    normal_radius:
+        Metres; the receivers' normals averaged over the agreeing faces within it
+        (:func:`reroom.invert.normals.smoothed_vertex_normals`, as
+        ``InvertOptions.normal_radius``); 0, the default, takes the one-ring normals.
     seed:
         Seed of the subsets and the hemisphere rays.
     """
@@ -259,6 +263,7 @@ class ScanLocalizeOptions:
     downward_candidates: bool = False
     soft_scale: float = 0.3
     time_limit: float = 900.0
+    normal_radius: float = 0.0
     seed: int = 0
 
 
@@ -393,7 +398,12 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
     rad = np.asarray(attrs["radiance"], np.float64).reshape(nv, 3)
     observed = np.asarray(attrs.get("observed", np.ones(nv)), bool) & np.isfinite(rad).all(axis=1)
     pts = np.asarray(mesh.vertices, np.float64)
-    nrm = vertex_normals(mesh)
+    if opt.normal_radius > 0:
+        from reroom.invert.normals import smoothed_vertex_normals
+
+        nrm = smoothed_vertex_normals(mesh, opt.normal_radius)
+    else:
+        nrm = vertex_normals(mesh)
 
     # Other lights (never point lights: those are what is estimated here).
     lights_path = scan / "lights" / "lights.json"
@@ -703,6 +713,10 @@ def localize_scan(
         raise ValueError(
             f"fitting_slack {opt.fitting_slack} and fitting_height {opt.fitting_height} must be "
             "positive (metres) with hold_in_fitting"
+        )
+    if not (np.isfinite(opt.normal_radius) and opt.normal_radius >= 0):
+        raise ValueError(
+            f"normal_radius must be a finite number of metres >= 0, got {opt.normal_radius}"
         )
     full, verts, layout, labels, vert_labels = _build_problem(scan, opt, notes)
     rng = np.random.default_rng(opt.seed + 1)
