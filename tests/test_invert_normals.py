@@ -47,8 +47,8 @@ def test_radius_zero_is_the_one_ring_and_bad_values_are_refused():
             smoothed_vertex_normals(mesh, bad)
     with pytest.raises(ValueError, match="min_agreement"):
         smoothed_vertex_normals(mesh, 0.1, min_agreement=2.0)
-    with pytest.raises(ValueError, match="iterations"):
-        smoothed_vertex_normals(mesh, 0.1, iterations=0)
+    with pytest.raises(ValueError, match="steps"):
+        smoothed_vertex_normals(mesh, 0.1, steps=0)
 
 
 def test_a_crease_stays_sharp():

@@ -501,10 +501,10 @@ def test_normal_radius_gives_the_transfer_smoothed_normals(
         return transfer(caster, m, sub, normals, *args, **kwargs)
 
     monkeypatch.setattr(pipeline, "hemisphere_transfer", spy)
-    run_invert(scan, tmp_path / "smooth", dataclasses.replace(FAST, normal_radius=0.15))
-    expected = smoothed_vertex_normals(read_ply(scan / "hdr" / "hdr_mesh.ply"), 0.15)
+    run_invert(scan, tmp_path / "smooth", dataclasses.replace(FAST, normal_radius=0.5))
+    expected = smoothed_vertex_normals(read_ply(scan / "hdr" / "hdr_mesh.ply"), 0.5)
     np.testing.assert_allclose(seen["normals"], expected)
     report = json.loads((tmp_path / "smooth" / "report.json").read_text())
-    assert report["options"]["normal_radius"] == 0.15
+    assert report["options"]["normal_radius"] == 0.5
     run_invert(scan, tmp_path / "ring", FAST)
     assert not np.allclose(seen["normals"], expected)

@@ -12,12 +12,14 @@ light by 20-40 % and raised the floor's albedo 21-36 % (docs/invert.md, "Session
 our reading: noise in the solve's regressors biases the fit toward weak lights, as
 regression dilution does).
 
-:func:`smoothed_vertex_normals` averages the face normals within a radius of each vertex
-that agree with its current estimate (a bilateral filter on the normal field, iterated),
-so that flat surfaces get their plane's normal while creases (a wall meeting the floor,
-a table's edge) stay sharp. Written here because trimesh and Open3D smooth normals over
-a fixed neighbour count or the one-ring only, not over a metric radius with an agreement
-cut-off.
+:func:`smoothed_vertex_normals` diffuses the normal field over the surface: a few rounds,
+each replacing a vertex's normal by the area-weighted mean of the normals within a short
+distance that agree with it (a bilateral filter), so that flat surfaces get their plane's
+normal while creases (a wall meeting the floor, a table's edge) stay sharp. Written here
+because trimesh and Open3D smooth normals over a fixed neighbour count or the one-ring
+only, not over a metric reach with an agreement cut-off. (Averaging the face normals
+within the whole radius at once gave the same normals within 2° and took 5x as long:
+a vertex has about 100 faces within 10 cm of a 3 cm fused mesh, 12 vertices within 5 cm.)
 """
 
 from __future__ import annotations
@@ -35,68 +37,75 @@ def smoothed_vertex_normals(
     mesh,
     radius: float,
     *,
-    min_agreement: float = 0.7,
-    iterations: int = 2,
+    min_agreement: float = 0.9,
+    steps: int = 4,
 ) -> np.ndarray:
-    """Unit vertex normals averaged over the faces within ``radius`` metres that agree.
+    """Unit vertex normals diffused over about ``radius`` metres of agreeing surface.
+
+    Each of ``steps`` rounds replaces every vertex's normal by the mean of the normals
+    of the vertices within ``radius / sqrt(steps)`` of it (itself included), weighted by
+    their areas (a third of their faces'), counting only those whose normal agrees with
+    its own: a diffusion whose reach is about ``radius``.
 
     Parameters
     ----------
     mesh
         Any object with ``vertices (V, 3)`` and ``faces (F, 3)``.
     radius : float
-        Metres from the vertex to a face's centroid. 0 returns the one-ring normals.
+        Metres. 0 returns the one-ring normals (:func:`vertex_normals`).
     min_agreement : float
-        A face counts only where the cosine between its normal and the vertex's current
-        normal is at least this (0.7: within about 45°), so that averaging never crosses
-        a crease.
-    iterations : int
-        Rounds of the filter, each starting from the previous round's normals (the first
-        from the one-ring normals).
+        A neighbour counts only where the cosine between its normal and the vertex's is
+        at least this (0.9: within about 26°), so that averaging never crosses a crease:
+        the one-ring normal of a crease's own vertices is halfway between its two sides
+        (45° from each at a right angle), and must not pass on to either (at 0.7 it did).
+    steps : int
+        Rounds of the filter.
 
     Returns
     -------
     ndarray, shape (V, 3)
-        Unit normals; a vertex with no face (or no agreeing face) keeps its one-ring
-        normal (zero for a vertex of no face, as :func:`vertex_normals`).
+        Unit normals; a vertex of no face keeps the zero normal of :func:`vertex_normals`.
 
     Raises
     ------
     ValueError
         ``radius`` negative or not finite, ``min_agreement`` outside [-1, 1], or
-        ``iterations`` < 1.
+        ``steps`` < 1.
     """
     radius = float(radius)
     if not np.isfinite(radius) or radius < 0:
         raise ValueError(f"normal radius must be a finite number of metres >= 0, got {radius}")
     if not -1.0 <= float(min_agreement) <= 1.0:
         raise ValueError(f"min_agreement must be a cosine in [-1, 1], got {min_agreement}")
-    if int(iterations) < 1:
-        raise ValueError(f"iterations must be >= 1, got {iterations}")
+    if int(steps) < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
     n0 = vertex_normals(mesh)
-    if radius == 0:
-        return n0
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.faces, np.int64)
-    if len(f) == 0:
+    if radius == 0 or len(f) == 0:
         return n0
     tri = v[f]
-    weighted = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 area
-    length = np.linalg.norm(weighted, axis=1, keepdims=True)
-    unit = np.divide(weighted, length, out=np.zeros_like(weighted), where=length > 0)
-    pairs = cKDTree(v).sparse_distance_matrix(
-        cKDTree(tri.mean(axis=1)), radius, output_type="coo_matrix"
+    face_area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = np.bincount(f.ravel(), np.repeat(face_area, 3), minlength=len(v)) / 3.0
+    tree = cKDTree(v)
+    pairs = tree.sparse_distance_matrix(
+        tree, radius / np.sqrt(int(steps)), output_type="coo_matrix"
     )
-    rows, cols = pairs.row, pairs.col
-    # sparse_distance_matrix leaves out pairs at distance exactly 0; a vertex's own
-    # faces are never at distance 0 from it (their centroids are not their corners).
+    # sparse_distance_matrix leaves out the zero distances: each vertex with itself
+    # (and exact duplicates, which then do not count each other).
+    self_ = np.arange(len(v))
+    rows = np.concatenate([pairs.row, self_])
+    cols = np.concatenate([pairs.col, self_])
+    has_face = np.linalg.norm(n0, axis=1) > 0
+    keep = has_face[rows] & has_face[cols]
+    rows, cols = rows[keep], cols[keep]
     n = n0
-    for _ in range(int(iterations)):
-        agree = np.einsum("ij,ij->i", n[rows], unit[cols]) >= min_agreement
-        pick = sp.csr_matrix(
-            (np.ones(int(agree.sum())), (rows[agree], cols[agree])), shape=(len(v), len(f))
+    for _ in range(int(steps)):
+        agree = np.einsum("ij,ij->i", n[rows], n[cols]) >= min_agreement
+        mean = sp.csr_matrix(
+            (area[cols[agree]], (rows[agree], cols[agree])), shape=(len(v), len(v))
         )
-        s = pick @ weighted
-        s_len = np.linalg.norm(s, axis=1, keepdims=True)
-        n = np.where(s_len > 0, s / np.maximum(s_len, 1e-300), n0)
+        s = mean @ n
+        length = np.linalg.norm(s, axis=1, keepdims=True)
+        n = np.where(length > 0, s / np.maximum(length, 1e-300), n0)
     return n
