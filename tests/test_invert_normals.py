@@ -7,7 +7,13 @@ import pytest
 import trimesh
 
 from reroom.hdr.observe import vertex_normals
-from reroom.invert.normals import smoothed_vertex_normals
+from reroom.invert.normals import (
+    AUTO_NOISE_DEG,
+    AUTO_RADIUS,
+    normal_lean_deg,
+    receiver_normals,
+    smoothed_vertex_normals,
+)
 
 
 def _noisy_grid(n: int = 60, step: float = 0.03, noise: float = 0.006, seed: int = 0):
@@ -76,3 +82,27 @@ def test_a_crease_stays_sharp():
     assert side_near_edge.sum() > 10
     assert np.all(_tilt_deg(n[side_near_edge], np.array([1.0, 0.0, 0.0])) < 1.0)
     assert not np.allclose(ring, n)  # the one-ring normals of the edges are 45°
+
+
+def test_auto_diffuses_only_a_noisy_floor():
+    noisy = _noisy_grid(noise=0.006)
+    clean = _noisy_grid(noise=0.0)
+    floor = np.ones(len(noisy.vertices), bool)
+    n, info = receiver_normals(noisy, None, floor)
+    assert info["floor_lean_deg"] > AUTO_NOISE_DEG and info["radius"] == AUTO_RADIUS
+    np.testing.assert_allclose(n, smoothed_vertex_normals(noisy, AUTO_RADIUS))
+    n, info = receiver_normals(clean, None, floor)
+    assert info["floor_lean_deg"] < 0.01 and info["radius"] == 0.0
+    np.testing.assert_array_equal(n, vertex_normals(clean))
+    # explicit radii are taken as given; no floor: auto keeps the one-ring normals
+    assert receiver_normals(clean, 0.05, floor)[1]["radius"] == 0.05
+    n, info = receiver_normals(noisy, None, np.zeros(len(floor), bool))
+    assert info == {"floor_lean_deg": None, "radius": 0.0}
+    assert normal_lean_deg(vertex_normals(noisy), floor) == info_lean(noisy)
+
+
+def info_lean(mesh) -> float:
+    """The lean by hand: median angle from the mean normal."""
+    n = vertex_normals(mesh)
+    m = n.sum(0) / np.linalg.norm(n.sum(0))
+    return float(np.degrees(np.arccos(np.median(np.clip(n @ m, -1, 1)))))

@@ -30,7 +30,13 @@ from scipy.spatial import cKDTree
 
 from reroom.hdr.observe import vertex_normals
 
-__all__ = ["smoothed_vertex_normals"]
+__all__ = [
+    "AUTO_NOISE_DEG",
+    "AUTO_RADIUS",
+    "normal_lean_deg",
+    "receiver_normals",
+    "smoothed_vertex_normals",
+]
 
 
 def smoothed_vertex_normals(
@@ -109,3 +115,57 @@ def smoothed_vertex_normals(
         length = np.linalg.norm(s, axis=1, keepdims=True)
         n = np.where(length > 0, s / np.maximum(length, 1e-300), n0)
     return n
+
+
+#: Median lean (degrees) of the floor's one-ring normals above which ``normal_radius``
+#: ``None`` (auto) diffuses the normals: 1.4° on the issue's 300-frame 320x180 fused
+#: `furnished` scan, where diffusing them made the floor 4 % dark and the tube 7 points
+#: brighter; 4.3° and 7.2° on 60- and 24-frame 160x120 fused scans, where it took the
+#: albedos from 25 % off to within 4 % (docs/invert.md, "Session 32").
+AUTO_NOISE_DEG = 3.0
+
+#: The radius (metres) auto diffuses over.
+AUTO_RADIUS = 0.1
+
+
+def normal_lean_deg(normals: np.ndarray, mask: np.ndarray) -> float | None:
+    """Median angle (degrees) of ``normals[mask]`` from their mean direction.
+
+    On a flat surface (the floor) this is the noise of the normals. ``None`` when fewer
+    than 100 vertices are selected or their normals cancel.
+    """
+    n = np.asarray(normals, np.float64)[np.asarray(mask, bool)]
+    n = n[np.linalg.norm(n, axis=1) > 0]
+    if len(n) < 100:
+        return None
+    mean = n.sum(axis=0)
+    length = float(np.linalg.norm(mean))
+    if not length > 0:
+        return None
+    cos = np.clip(n @ (mean / length), -1.0, 1.0)
+    return float(np.degrees(np.arccos(np.median(cos))))
+
+
+def receiver_normals(
+    mesh, radius: float | None, floor: np.ndarray
+) -> tuple[np.ndarray, dict[str, float | None]]:
+    """The normals the transfer uses, by ``radius`` (``None``: auto), with what was decided.
+
+    ``radius`` > 0 diffuses over that radius, 0 keeps the one-ring normals, ``None``
+    diffuses over :data:`AUTO_RADIUS` only where the floor's (``floor``: a vertex mask)
+    one-ring normals lean more than :data:`AUTO_NOISE_DEG` in the median (a scan too
+    noisy for them), and keeps them otherwise (also when the scan has no floor).
+
+    Returns
+    -------
+    normals, info
+        ``info`` has ``floor_lean_deg`` (of the one-ring normals; ``None`` without a
+        floor) and ``radius`` (the one used).
+    """
+    ring = vertex_normals(mesh)
+    lean = normal_lean_deg(ring, floor)
+    if radius is None:
+        radius = AUTO_RADIUS if lean is not None and lean > AUTO_NOISE_DEG else 0.0
+    radius = float(radius)
+    normals = smoothed_vertex_normals(mesh, radius) if radius > 0 else ring
+    return normals, {"floor_lean_deg": lean, "radius": radius}

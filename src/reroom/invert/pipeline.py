@@ -24,7 +24,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from reroom.errors import ReroomError, ScanError
-from reroom.hdr.observe import vertex_normals
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
@@ -35,7 +34,7 @@ from reroom.invert.line_fixture import (
     line_open_fraction,
     scan_fixture_caster,
 )
-from reroom.invert.normals import smoothed_vertex_normals
+from reroom.invert.normals import AUTO_NOISE_DEG, receiver_normals
 from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -180,15 +179,21 @@ class InvertOptions:
     near_max_fraction : float
         See ``near_distance``.
     normal_radius : float
-        Metres. Every transfer takes its receivers' normals averaged over the faces
-        within this radius that agree with them
-        (:func:`reroom.invert.normals.smoothed_vertex_normals`) instead of the one-ring
-        normals (0, the default). A fused scan's one-ring normals carry its noise (the
-        walls of a 24-frame 160x120 `furnished` scan lean 15° in the median), which the
-        solve turns into dim lights and bright albedos; 0.1 took that scan's truth run
-        from wall +6/+9/+11 %, floor +21/+28/+36 % to +1/+2/+2 %, +6/+9/+10 %, but the
-        tube from +5/−11/−18 % to +41/+28/+19 % (docs/invert.md, "Session 32"). Off by
-        default until it is measured on the issue's scan.
+        Metres. Every transfer takes its receivers' normals diffused over about this
+        radius of agreeing surface (:func:`reroom.invert.normals.smoothed_vertex_normals`)
+        instead of the one-ring normals (0). ``None`` (the default): 0.1 where the
+        floor's one-ring normals lean more than 3° in the median, else 0
+        (:func:`reroom.invert.normals.receiver_normals`; ``report.json``'s ``normals``
+        says which). A fused scan's one-ring normals carry its
+        noise (the walls of a 24-frame 160x120 `furnished` scan lean 15° in the
+        median), which the solve turns into dim lights and bright albedos. 0.1 took that
+        scan's truth run from wall +6/+9/+11 %, floor +21/+28/+36 %, panel −31 % to
+        +0/+1/+2 %, +5/+8/+10 %, −7/−9/−11 % (the tube from +5/−11/−18 % to
+        +45/+35/+27 %), and a 60-frame one end to end from albedos within 25 % and
+        lights 13-34 % off to albedos within 4.1 % and every light but the window within
+        10 %; on the issue's 300-frame 320x180 scan, whose floor normals lean 1.4°, it
+        made the floor 4 % dark and the lights 3-7 points brighter, hence the auto rule
+        (docs/invert.md, "Session 32").
     min_bin_support : float
         A point or line light's bin whose summed transfer over the clustered receivers
         is below this fraction of its best-seen bin's is *poorly seen*: its solved value
@@ -329,7 +334,7 @@ class InvertOptions:
     point_clearance: float = 0.3
     near_distance: float = 0.05
     near_max_fraction: float = 0.15
-    normal_radius: float = 0.0
+    normal_radius: float | None = None
     min_bin_support: float = 0.01
     textures: bool = True
     texel: float | None = None
@@ -828,9 +833,12 @@ def run_invert(
         raise ValueError(f"point_splits must be >= 0, got {options.point_splits}")
     if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
         raise ValueError(f"window_smooth must be a finite number >= 0, got {options.window_smooth}")
-    if not (np.isfinite(options.normal_radius) and options.normal_radius >= 0):
+    if options.normal_radius is not None and not (
+        np.isfinite(options.normal_radius) and options.normal_radius >= 0
+    ):
         raise ValueError(
-            f"normal_radius must be a finite number of metres >= 0, got {options.normal_radius}"
+            f"normal_radius must be None (auto) or a finite number of metres >= 0, got "
+            f"{options.normal_radius}"
         )
     scan = Path(scan_dir)
     out = Path(out_dir) if out_dir is not None else scan / "invert"
@@ -880,11 +888,15 @@ def run_invert(
         )
         for w in wins
     ]
-    normals = (
-        smoothed_vertex_normals(mesh, options.normal_radius)
-        if options.normal_radius > 0
-        else vertex_normals(mesh)
+    normals, normal_info = receiver_normals(
+        mesh, options.normal_radius, labels == CLUSTER_LABELS["floor"]
     )
+    if options.normal_radius is None and normal_info["radius"] > 0:
+        notes.append(
+            f"the floor's one-ring normals lean {normal_info['floor_lean_deg']:.1f}° in the "
+            f"median (> {AUTO_NOISE_DEG:g}°: a noisy scan): the transfer uses normals "
+            f"diffused over {normal_info['radius']:g} m (normal_radius)"
+        )
     has_normal = np.linalg.norm(normals, axis=1) > 0
     receivers = np.flatnonzero(observed & ~on_light & has_normal)
     if len(receivers) == 0:
@@ -1281,6 +1293,7 @@ def run_invert(
         "observed": int(observed.sum()),
         "receivers": int(len(receivers)),
         "hemisphere_receivers": int(len(sub)),
+        "normals": normal_info,
         "clustered": int(len(rows)),
         "options": _jsonable_options(options),
     }

@@ -215,7 +215,8 @@ class ScanLocalizeOptions:
     normal_radius:
         Metres; the receivers' normals averaged over the agreeing faces within it
         (:func:`reroom.invert.normals.smoothed_vertex_normals`, as
-        ``InvertOptions.normal_radius``); 0, the default, takes the one-ring normals.
+        ``InvertOptions.normal_radius``); 0 takes the one-ring normals; ``None`` (the
+        default) decides by the floor's noise as ``InvertOptions.normal_radius`` does.
     seed:
         Seed of the subsets and the hemisphere rays.
     """
@@ -263,7 +264,7 @@ class ScanLocalizeOptions:
     downward_candidates: bool = False
     soft_scale: float = 0.3
     time_limit: float = 900.0
-    normal_radius: float = 0.0
+    normal_radius: float | None = None
     seed: int = 0
 
 
@@ -366,7 +367,6 @@ def _room_mask(points: np.ndarray, layout: dict, margin_floor: float = 0.1) -> n
 
 
 def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
-    from reroom.hdr.observe import vertex_normals
     from reroom.invert.area import area_light_transfer
     from reroom.invert.basis import CubemapBasis, InclinationBasis
     from reroom.invert.direct import line_light_transfer
@@ -398,12 +398,15 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
     rad = np.asarray(attrs["radiance"], np.float64).reshape(nv, 3)
     observed = np.asarray(attrs.get("observed", np.ones(nv)), bool) & np.isfinite(rad).all(axis=1)
     pts = np.asarray(mesh.vertices, np.float64)
-    if opt.normal_radius > 0:
-        from reroom.invert.normals import smoothed_vertex_normals
+    from reroom.invert.normals import receiver_normals
 
-        nrm = smoothed_vertex_normals(mesh, opt.normal_radius)
-    else:
-        nrm = vertex_normals(mesh)
+    nrm, normal_info = receiver_normals(mesh, opt.normal_radius, labels == FLOOR)
+    if opt.normal_radius is None and normal_info["radius"] > 0:
+        notes.append(
+            f"the floor's one-ring normals lean {normal_info['floor_lean_deg']:.1f}° in the "
+            f"median: a noisy scan, the receivers' normals diffused over "
+            f"{normal_info['radius']:g} m (normal_radius)"
+        )
 
     # Other lights (never point lights: those are what is estimated here).
     lights_path = scan / "lights" / "lights.json"
@@ -714,9 +717,12 @@ def localize_scan(
             f"fitting_slack {opt.fitting_slack} and fitting_height {opt.fitting_height} must be "
             "positive (metres) with hold_in_fitting"
         )
-    if not (np.isfinite(opt.normal_radius) and opt.normal_radius >= 0):
+    if opt.normal_radius is not None and not (
+        np.isfinite(opt.normal_radius) and opt.normal_radius >= 0
+    ):
         raise ValueError(
-            f"normal_radius must be a finite number of metres >= 0, got {opt.normal_radius}"
+            f"normal_radius must be None (auto) or a finite number of metres >= 0, got "
+            f"{opt.normal_radius}"
         )
     full, verts, layout, labels, vert_labels = _build_problem(scan, opt, notes)
     rng = np.random.default_rng(opt.seed + 1)
