@@ -39,6 +39,8 @@ from reroom.hdr.observe import vertex_normals
 __all__ = [
     "AUTO_NOISE_DEG",
     "AUTO_RADIUS",
+    "auto_note",
+    "check_normal_radius",
     "normal_lean_deg",
     "receiver_normals",
     "smoothed_vertex_normals",
@@ -175,3 +177,22 @@ def receiver_normals(
     radius = float(radius)
     normals = smoothed_vertex_normals(mesh, radius) if radius > 0 else ring
     return normals, {"floor_lean_deg": lean, "radius": radius}
+
+
+def check_normal_radius(radius: float | None) -> None:
+    """Refuse a ``normal_radius`` option that is neither ``None`` (auto) nor metres >= 0."""
+    if radius is not None and not (np.isfinite(radius) and radius >= 0):
+        raise ValueError(
+            f"normal_radius must be None (auto) or a finite number of metres >= 0, got {radius}"
+        )
+
+
+def auto_note(radius: float | None, info: dict[str, float | None]) -> str | None:
+    """The warning to give when the auto rule (``radius`` ``None``) diffused the normals."""
+    if radius is not None or not info["radius"]:
+        return None
+    return (
+        f"the floor's one-ring normals lean {info['floor_lean_deg']:.1f}° in the median "
+        f"(> {AUTO_NOISE_DEG:g}°: a noisy scan): the receivers' normals are diffused over "
+        f"{info['radius']:g} m (normal_radius)"
+    )

@@ -34,7 +34,7 @@ from reroom.invert.line_fixture import (
     line_open_fraction,
     scan_fixture_caster,
 )
-from reroom.invert.normals import AUTO_NOISE_DEG, receiver_normals
+from reroom.invert.normals import auto_note, check_normal_radius, receiver_normals
 from reroom.invert.portal import DEFAULT_WINDOW_SAMPLES, window_portal_transfer
 from reroom.invert.receivers import near_occlusion
 from reroom.invert.solve import (
@@ -833,13 +833,7 @@ def run_invert(
         raise ValueError(f"point_splits must be >= 0, got {options.point_splits}")
     if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
         raise ValueError(f"window_smooth must be a finite number >= 0, got {options.window_smooth}")
-    if options.normal_radius is not None and not (
-        np.isfinite(options.normal_radius) and options.normal_radius >= 0
-    ):
-        raise ValueError(
-            f"normal_radius must be None (auto) or a finite number of metres >= 0, got "
-            f"{options.normal_radius}"
-        )
+    check_normal_radius(options.normal_radius)
     scan = Path(scan_dir)
     out = Path(out_dir) if out_dir is not None else scan / "invert"
     notes: list[str] = []
@@ -891,12 +885,8 @@ def run_invert(
     normals, normal_info = receiver_normals(
         mesh, options.normal_radius, labels == CLUSTER_LABELS["floor"]
     )
-    if options.normal_radius is None and normal_info["radius"] > 0:
-        notes.append(
-            f"the floor's one-ring normals lean {normal_info['floor_lean_deg']:.1f}° in the "
-            f"median (> {AUTO_NOISE_DEG:g}°: a noisy scan): the transfer uses normals "
-            f"diffused over {normal_info['radius']:g} m (normal_radius)"
-        )
+    if note := auto_note(options.normal_radius, normal_info):
+        notes.append(note)
     has_normal = np.linalg.norm(normals, axis=1) > 0
     receivers = np.flatnonzero(observed & ~on_light & has_normal)
     if len(receivers) == 0:

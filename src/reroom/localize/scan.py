@@ -213,8 +213,8 @@ class ScanLocalizeOptions:
     time_limit:
         Seconds; the search stops adding lights after this.
     normal_radius:
-        Metres; the receivers' normals averaged over the agreeing faces within it
-        (:func:`reroom.invert.normals.smoothed_vertex_normals`, as
+        Metres; the receivers' normals diffused over about this radius of agreeing
+        surface (:func:`reroom.invert.normals.smoothed_vertex_normals`, as
         ``InvertOptions.normal_radius``); 0 takes the one-ring normals; ``None`` (the
         default) decides by the floor's noise as ``InvertOptions.normal_radius`` does.
     seed:
@@ -398,15 +398,11 @@ def _build_problem(scan: Path, opt: ScanLocalizeOptions, notes: list[str]):
     rad = np.asarray(attrs["radiance"], np.float64).reshape(nv, 3)
     observed = np.asarray(attrs.get("observed", np.ones(nv)), bool) & np.isfinite(rad).all(axis=1)
     pts = np.asarray(mesh.vertices, np.float64)
-    from reroom.invert.normals import receiver_normals
+    from reroom.invert.normals import auto_note, receiver_normals
 
     nrm, normal_info = receiver_normals(mesh, opt.normal_radius, labels == FLOOR)
-    if opt.normal_radius is None and normal_info["radius"] > 0:
-        notes.append(
-            f"the floor's one-ring normals lean {normal_info['floor_lean_deg']:.1f}° in the "
-            f"median: a noisy scan, the receivers' normals diffused over "
-            f"{normal_info['radius']:g} m (normal_radius)"
-        )
+    if note := auto_note(opt.normal_radius, normal_info):
+        notes.append(note)
 
     # Other lights (never point lights: those are what is estimated here).
     lights_path = scan / "lights" / "lights.json"
@@ -717,13 +713,9 @@ def localize_scan(
             f"fitting_slack {opt.fitting_slack} and fitting_height {opt.fitting_height} must be "
             "positive (metres) with hold_in_fitting"
         )
-    if opt.normal_radius is not None and not (
-        np.isfinite(opt.normal_radius) and opt.normal_radius >= 0
-    ):
-        raise ValueError(
-            f"normal_radius must be None (auto) or a finite number of metres >= 0, got "
-            f"{opt.normal_radius}"
-        )
+    from reroom.invert.normals import check_normal_radius
+
+    check_normal_radius(opt.normal_radius)
     full, verts, layout, labels, vert_labels = _build_problem(scan, opt, notes)
     rng = np.random.default_rng(opt.seed + 1)
     search = np.flatnonzero(np.isin(labels, opt.classes))
