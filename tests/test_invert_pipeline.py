@@ -508,3 +508,76 @@ def test_normal_radius_gives_the_transfer_smoothed_normals(
     assert report["options"]["normal_radius"] == 0.5
     run_invert(scan, tmp_path / "ring", FAST)
     assert not np.allclose(seen["normals"], expected)
+
+
+def test_photo_colours_reach_the_solve_and_scene_json(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``photo_color``: the tube's and the panel's colours from the photos (stubbed here:
+    the measurement is tested in test_invert_emitter_color.py) become the solve's colour
+    priors, the panel is solved as colour x scalar, and scene.json records the colours;
+    a colour the photos cannot give leaves the light to the solve, with a note."""
+    import reroom.invert.pipeline as pipeline
+    from reroom.invert.emitter_color import EmitterColor
+    from reroom.lights.lightset import Light, LightSet, write_lights
+
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="photo_color must be >= 0"):
+            run_invert(tmp_path / "nothing_here", None, InvertOptions(photo_color=bad))
+    alternating = InvertOptions(photo_color=1.0, solve=SolveOptions(method="alternating"))
+    with pytest.raises(ValueError, match="photo_color needs the joint solver"):
+        run_invert(tmp_path / "nothing_here", None, alternating)
+
+    scan = _box_scan(tmp_path, radiance=0.3)
+    nv = len(read_ply(scan / "hdr" / "hdr_mesh.ply").vertices)
+    geom = {"p0": [1.0, 1.25, 2.2], "p1": [2.0, 1.25, 2.2], "d_perp": [0, 0, 1.0], "radius": 0.02}
+    panel_geom = {
+        "centroid": [1.5, 0.6, 2.39], "normal": [0, 0, -1.0], "area": 0.16, "size": [0.4, 0.4],
+        "axis_long": [1.0, 0, 0], "axis_short": [0, 1.0, 0],
+    }  # fmt: skip
+    lights = [
+        Light("tube", "line", "user", geom, {}, "test"),
+        Light("panel", "area", "user", panel_geom, {}, "test"),
+    ]
+    write_lights(LightSet(lights, [], np.full(nv, -1, np.int32)), scan / "lights")
+    measured = {
+        "tube": np.array([0.9, 1.0, 1.1]),
+        "panel": np.array([1.1, 1.0, 0.9]),
+    }
+
+    def fake_color(scan_dir, name, points, facing, caster, notes):
+        assert points.shape[1] == 3 and len(points) > 5
+        if name not in measured:
+            return None
+        return EmitterColor(measured[name], np.full(3, 0.005), 200, 10)
+
+    monkeypatch.setattr(pipeline, "_photo_color", fake_color)
+    seen = {}
+    solve = pipeline.solve_lighting
+
+    def spy(problem, *args, **kwargs):
+        seen.update({b.name: b for b in problem.lights})
+        return solve(problem, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "solve_lighting", spy)
+    opts = dataclasses.replace(FAST, bins=8, photo_color=100.0)
+    result = run_invert(scan, None, opts)
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    by_name = {e["name"]: e for e in doc["lights"]}
+    for name, color in measured.items():
+        block = seen[name]
+        assert block.monochrome and block.color_prior_weight == 100.0
+        np.testing.assert_allclose(block.color_prior, color)
+        assert by_name[name]["color_from_photos"]["color"] == pytest.approx(color.tolist())
+        unit = color / np.linalg.norm(color)
+        np.testing.assert_allclose(result.solve.colors[name], unit, atol=2e-3)
+    # without the option: no prior, the panel chromatic, no record
+    plain = run_invert(scan, tmp_path / "plain", dataclasses.replace(FAST, photo_color=0.0))
+    assert not seen["panel"].monochrome and seen["tube"].color_prior_weight == 0.0
+    doc = json.loads((tmp_path / "plain" / "scene.json").read_text())
+    assert not any("color_from_photos" in e for e in doc["lights"])
+    assert plain.solve is not None
+    # a colour the photos cannot give: no prior for that light
+    measured.pop("panel")
+    run_invert(scan, tmp_path / "half", opts)
+    assert not seen["panel"].monochrome and seen["tube"].color_prior_weight == 100.0

@@ -564,3 +564,57 @@ def test_lower_bounds_are_validated() -> None:
     problem.lights[0] = dataclasses.replace(problem.lights[0], lower=np.ones((4, 3)))
     with pytest.raises(SolveError, match="need a chromatic light"):
         solve_lighting(problem)
+
+
+def test_colour_prior_holds_a_monochrome_light_to_its_measured_colour() -> None:
+    """A prior at the true colour leaves the exact solve exact; a prior elsewhere moves
+    the colour toward it as its weight grows (the data pays for it)."""
+    opts = dataclasses.replace(EXACT, method="joint")
+    problem, truth = synthetic_problem(1500, lights=("area", "line"), seed=5)
+    true = truth.intensities["tube"][0] / np.linalg.norm(truth.intensities["tube"][0])
+    i_tube = next(i for i, lt in enumerate(problem.lights) if lt.name == "tube")
+    tube = problem.lights[i_tube]
+    problem.lights[i_tube] = dataclasses.replace(
+        tube, color_prior=3.0 * true, color_prior_weight=100.0
+    )
+    result = solve_lighting(problem, opts)
+    np.testing.assert_allclose(result.colors["tube"], true, atol=1e-6)
+    np.testing.assert_allclose(result.albedo, truth.albedo, atol=1e-5)
+    wrong = true * np.array([1.2, 1.0, 0.8])
+    wrong /= np.linalg.norm(wrong)
+    off = []
+    for weight in (1e-8, 1e-2, 1e2):
+        problem.lights[i_tube] = dataclasses.replace(
+            tube, color_prior=wrong, color_prior_weight=weight
+        )
+        got = solve_lighting(problem, opts).colors["tube"]
+        off.append(np.linalg.norm(got - wrong))
+    assert off[0] == pytest.approx(np.linalg.norm(true - wrong), rel=1e-3)
+    assert off[0] > off[1] > off[2]
+    assert off[2] < 0.01 * off[0]
+
+
+def test_colour_prior_is_validated() -> None:
+    problem, _ = synthetic_problem(200, lights=("area", "line"), seed=5)
+    i_tube = next(i for i, lt in enumerate(problem.lights) if lt.name == "tube")
+    tube = problem.lights[i_tube]
+    for prior, weight, match in (
+        (None, 1.0, "colour prior of 3"),
+        (np.array([1.0, np.nan, 1.0]), 1.0, "colour prior of 3"),
+        (np.array([1.0, 1.0]), 1.0, "colour prior of 3"),
+        (np.zeros(3), 1.0, "colour prior of 3"),
+        (np.ones(3), -1.0, "color_prior_weight >= 0"),
+    ):
+        problem.lights[i_tube] = dataclasses.replace(
+            tube, color_prior=prior, color_prior_weight=weight
+        )
+        with pytest.raises(SolveError, match=match):
+            solve_lighting(problem)
+    problem.lights[i_tube] = dataclasses.replace(tube, color_prior=np.ones(3), color_prior_weight=1)
+    with pytest.raises(SolveError, match="colour prior needs the joint solver"):
+        solve_lighting(problem, SolveOptions(method="alternating"))
+    panel = problem.lights[0]
+    problem.lights[i_tube] = tube
+    problem.lights[0] = dataclasses.replace(panel, color_prior=np.ones(3), color_prior_weight=1)
+    with pytest.raises(SolveError, match="needs a monochrome light"):
+        solve_lighting(problem)

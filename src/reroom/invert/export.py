@@ -478,6 +478,8 @@ def light_entries(
         values = result.solve.intensities[block.name]
         share = result.solve.light_share.get(block.name, 0.0)
         e: dict[str, Any] = {"name": block.name, "type": block.kind, "geometry": g}
+        if "color_from_photos" in info:  # the colour prior (reroom.invert.emitter_color)
+            e["color_from_photos"] = info["color_from_photos"]
         if "refinement" in info:  # point lights: reroom.invert.refine_points
             e["position_refinement"] = {
                 **info["refinement"],

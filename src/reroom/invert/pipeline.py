@@ -137,6 +137,12 @@ class InvertOptions:
         Where the scan does not resolve a tube's fixture, take the tube's axis and radius
         and a trough around it from the photos (:mod:`reroom.invert.line_photos`)
         instead of dropping the shape prior.
+    photo_color : float
+        Weight of a prior on each line and area light's colour read from the
+        unsaturated edge of its clipped image in the photos
+        (:mod:`reroom.invert.emitter_color`; the solve's
+        ``LightBlock.color_prior_weight``, relative to the data term); 0: none. An area
+        light with a measured colour is solved as colour x scalar. Needs the joint solver.
     rays_per_receiver : int
         Hemisphere rays per receiving vertex.
     receiver_voxel : float
@@ -323,6 +329,7 @@ class InvertOptions:
     line_shape_prior: float = 1e5
     line_fixture_samples: int = 64
     line_photo_fixture: bool = True
+    photo_color: float = 1.0
     point_shape_prior: float = 1e4
     rays_per_receiver: int = 512
     receiver_voxel: float = 0.1
@@ -474,6 +481,9 @@ def emitter_surfaces(
 
 #: Tube radius (metres) assumed for a line light whose geometry has none (a T8 tube).
 DEFAULT_TUBE_RADIUS = 0.013
+#: A light's colour from the photos varying more than this between frames (half its 90 %
+#: bootstrap interval, per channel) is not used (reroom.invert.emitter_color).
+MAX_PHOTO_COLOR_SPREAD = 0.05
 
 
 def _line_open_shape(
@@ -572,6 +582,79 @@ def _point_open_shape(
         notes.append(f"the scanned shade of point light {light.name!r} hides it everywhere")
         return None, {}
     return open_frac, {"open_fraction": np.round(open_frac, 4).tolist()}
+
+
+def _photo_color(
+    scan: Path, name: str, points: np.ndarray, facing, caster: RayCaster, notes: list[str]
+):
+    """A light's colour from the photos (:func:`reroom.invert.emitter_color.emitter_color`)
+    in the HDR mesh's units; None, with a note, where the photos do not give it."""
+    from reroom.invert.emitter_color import emitter_color
+    from reroom.invert.photos import frame_scale, read_frame_scales, scan_response
+    from reroom.scan import load_scan
+
+    try:
+        sc = load_scan(scan, check_images=False)
+        doc, scales = read_frame_scales(scan)
+        lut = scan_response(doc, sc.meta, notes.append)
+    except (ReroomError, OSError, ValueError) as exc:
+        notes.append(f"light {name!r}: no colour from the photos ({exc})")
+        return None
+
+    def load(frame):
+        try:
+            return frame.load_image()
+        except (ReroomError, OSError, ValueError) as exc:
+            notes.append(f"light {name!r}: frame {frame.index} skipped for its colour ({exc})")
+            return None
+
+    found = emitter_color(
+        sc.frames, load, lambda i: frame_scale(scales, i), lut, caster, points, facing=facing
+    )
+    if found is None:
+        notes.append(
+            f"light {name!r}: the photos show too few unsaturated pixels at the edge of its "
+            "clipped image for its colour (a light below saturation, or one no frame sees): "
+            "its colour from the solve alone"
+        )
+    elif float(found.spread.max()) > MAX_PHOTO_COLOR_SPREAD:
+        notes.append(
+            f"light {name!r}: its colour from the photos ({np.round(found.color, 3).tolist()}) "
+            f"varies by +-{100 * found.spread.max():.1f} % between frames (over "
+            f"{100 * MAX_PHOTO_COLOR_SPREAD:.0f} %): not used, its colour from the solve alone"
+        )
+        return None
+    return found
+
+
+def _line_photo_color(scan: Path, mesh, name: str, geometry: dict, notes: list[str]):
+    """A tube's colour from the photos, seen past its fixture (a fused scan's block)."""
+    from reroom.invert.emitter_color import segment_points
+    from reroom.invert.line_photos import caster_without_fixture
+
+    p0, p1 = np.asarray(geometry["p0"], float), np.asarray(geometry["p1"], float)
+    others = caster_without_fixture(mesh.vertices, mesh.faces, p0, p1)
+    if others is None:
+        notes.append(f"light {name!r}: no colour from the photos (the scan is its fixture)")
+        return None
+    up = np.asarray(geometry["d_perp"], float)
+    mid = 0.5 * (p0 + p1)
+    return _photo_color(
+        scan, name, segment_points(p0, p1), lambda c: float((c - mid) @ up) < 0, others, notes
+    )
+
+
+def _area_photo_color(scan: Path, caster: RayCaster, name: str, g: dict, notes: list[str]):
+    """A rectangular light's colour from the photos, seen from its emitting side."""
+    from reroom.invert.emitter_color import rectangle_points
+
+    try:
+        pts = rectangle_points(g["centroid"], g["axis_long"], g["axis_short"], g["size"])
+        centre, normal = np.asarray(g["centroid"], float), np.asarray(g["normal"], float)
+    except (KeyError, TypeError, ValueError) as exc:
+        notes.append(f"light {name!r}: no colour from the photos (its geometry: {exc!r})")
+        return None
+    return _photo_color(scan, name, pts, lambda c: float((c - centre) @ normal) > 0, caster, notes)
 
 
 def _photo_trough(
@@ -819,6 +902,10 @@ def run_invert(
     options = options or InvertOptions()
     if options.window_photo_bounds and options.solve.method == "alternating":
         raise ValueError("window_photo_bounds needs the joint solver: set solve.method to 'joint'")
+    if not np.isfinite(options.photo_color) or options.photo_color < 0:
+        raise ValueError(f"photo_color must be >= 0, got {options.photo_color}")
+    if options.photo_color > 0 and options.solve.method == "alternating":
+        raise ValueError("photo_color needs the joint solver: set solve.method to 'joint'")
     if options.albedo_footprint_rings < 0:
         raise ValueError(
             f"albedo_footprint_rings must be >= 0, got {options.albedo_footprint_rings}"
@@ -945,7 +1032,24 @@ def run_invert(
     n_recv = normals[receivers] / np.linalg.norm(normals[receivers], axis=1, keepdims=True)
     p_recv = inset_points(mesh, receivers, n_recv, options.receiver_inset)
     for k, light in enumerate(areas):
-        blocks.append(LightBlock(light.name, "area", 1))
+        color = (
+            _area_photo_color(scan, caster, light.name, light.geometry, notes)
+            if options.photo_color > 0 and radiance_override is None
+            else None
+        )
+        # With a measured colour the light is colour x scalar, so the prior can hold it.
+        blocks.append(
+            LightBlock(light.name, "area", 1)
+            if color is None
+            else LightBlock(
+                light.name,
+                "area",
+                1,
+                True,
+                color_prior=color.color,
+                color_prior_weight=options.photo_color,
+            )  # fmt: skip
+        )
         # Integrated over the light's surface, not counted from the hemisphere rays:
         # those are unbiased but far too noisy for a small light (reroom.invert.area).
         f_area = area_light_transfer(
@@ -958,7 +1062,14 @@ def run_invert(
             seed=options.seed + k,
         )
         columns.append(f_area[:, None])
-        info.append({"name": light.name, "type": "area", "geometry": light.geometry})
+        info.append(
+            {
+                "name": light.name,
+                "type": "area",
+                "geometry": light.geometry,
+                **({} if color is None else {"color_from_photos": color.summary()}),
+            }
+        )
     photos = _window_photos(scan, mesh, caster, openings, options, notes)
     priors = _window_photo_priors(photos, openings, basis, options)
     for k, light in enumerate(wins):
@@ -1067,6 +1178,13 @@ def run_invert(
                 scan, mesh, light.name, g, line_basis, options, notes, caster
             )
             light.geometry = g
+            color = (
+                _line_photo_color(scan, mesh, light.name, g, notes)
+                if options.photo_color > 0 and radiance_override is None
+                else None
+            )
+            if color is not None:
+                open_info["color_from_photos"] = color.summary()
             f = line_light_transfer(
                 caster,
                 p_recv,
@@ -1088,6 +1206,8 @@ def run_invert(
                     line_adj_w,
                     shape=shape,
                     shape_weight=options.line_shape_prior if shape is not None else 0.0,
+                    color_prior=None if color is None else color.color,
+                    color_prior_weight=0.0 if color is None else options.photo_color,
                 )
             )
             info.append(

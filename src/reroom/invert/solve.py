@@ -127,6 +127,16 @@ class LightBlock:
         Lower bounds on the intensities (absolute units, 0 or NaN: none), for chromatic
         lights and the joint solver: what a window's saturated photos prove about its
         cells (:func:`reroom.invert.window_env.cell_lower_bounds`).
+    color_prior : ndarray, shape (3,), optional
+        A measured colour of a monochrome light (any positive scale; the solve's
+        radiance units), for the joint solver: it adds ``color_prior_weight * E *
+        ||col - c||^2``, ``col`` the light's unit colour, ``c`` the prior's, ``E`` the
+        weighted data term of a model that is off by 100 % everywhere (``sum w Lbar^2``),
+        so a weight of 1 prices a colour 1 % off like a fit 1 % worse on every vertex.
+        A tube's or panel's colour read from the unsaturated edge of its clipped image
+        (:func:`reroom.invert.emitter_color.emitter_color`).
+    color_prior_weight : float
+        Weight of that prior (0: none).
     """
 
     name: str
@@ -140,6 +150,8 @@ class LightBlock:
     prior: np.ndarray | None = None
     prior_weight: np.ndarray | None = None
     lower: np.ndarray | None = None
+    color_prior: np.ndarray | None = None
+    color_prior_weight: float = 0.0
 
 
 @dataclass
@@ -199,6 +211,8 @@ class InverseProblem:
                     raise SolveError(f"light {light.name!r} needs a shape_weight >= 0")
             if light.prior_weight is not None:
                 _validate_prior(light)
+            if light.color_prior_weight:
+                _validate_color_prior(light)
             if light.lower is not None:
                 lb = np.asarray(light.lower, float)
                 if light.monochrome:
@@ -224,6 +238,17 @@ class InverseProblem:
                 raise SolveError(f"{name} has non-finite values")
         if n and (self.cluster.min() < 0 or self.cluster.max() >= len(self.cluster_names)):
             raise SolveError("cluster ids out of range of cluster_names")
+
+
+def _validate_color_prior(light: LightBlock) -> None:
+    wt = light.color_prior_weight
+    if not np.isfinite(wt) or wt < 0:
+        raise SolveError(f"light {light.name!r} needs a color_prior_weight >= 0")
+    if not light.monochrome:
+        raise SolveError(f"light {light.name!r}: a colour prior needs a monochrome light")
+    c = None if light.color_prior is None else np.asarray(light.color_prior, float)
+    if c is None or c.shape != (3,) or not np.all(np.isfinite(c)) or c.min() < 0 or c.max() <= 0:
+        raise SolveError(f"light {light.name!r} needs a colour prior of 3 finite values >= 0")
 
 
 def _validate_prior(light: LightBlock) -> None:
@@ -408,6 +433,10 @@ class _Layout:
     chrom_pull: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     # Lower bounds of the chromatic intensities (n_chrom, 3), relative units (0: none).
     chrom_lower: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    # Each monochrome light's colour prior (n_mono_lights, 3; unit rows) and the square
+    # root of its weight in the objective (0: none), set once the data term is known.
+    color_prior: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    color_sqrt_weight: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_chrom(self) -> int:
@@ -624,7 +653,14 @@ class _Data:
             smooth += float(np.sum((lay.smooth_chrom @ st.chrom - lay.chrom_rhs) ** 2))
         if lay.smooth_mono.shape[0]:
             smooth += float(np.sum((lay.smooth_mono @ st.profile) ** 2))
+        if lay.color_sqrt_weight.any():
+            smooth += float(np.sum(_color_prior_rows(lay, st.color) ** 2))
         return data + smooth, h
+
+
+def _color_prior_rows(lay: _Layout, color: np.ndarray) -> np.ndarray:
+    """The colour priors' residuals ``sqrt(weight) (col - prior)``, (n_mono_lights * 3,)."""
+    return (lay.color_sqrt_weight[:, None] * (color - lay.color_prior)).ravel()
 
 
 # --------------------------------------------------------------------------------------
@@ -895,6 +931,7 @@ def _solve_joint(
     f_chrom = data.F[:, lay.chrom_cols].tocsr()
     f_mono = data.F[:, lay.mono_cols].tocsr()
     sc, sm = lay.smooth_chrom, lay.smooth_mono
+    priced = bool(n_ml and lay.color_sqrt_weight.any())
 
     def unpack(x: np.ndarray) -> tuple:
         rho = x[:n_rho].reshape(len(used_c), 3)
@@ -916,6 +953,8 @@ def _solve_joint(
         _, chrom, prof, _, _, _, irr, rv = parts(x)
         r = (sqw * (rv * irr - data.L)).T.ravel()
         smooth = [(sc @ chrom - lay.chrom_rhs).T.ravel(), sm @ prof]
+        if priced:
+            smooth.append(_color_prior_rows(lay, _color_of(unpack(x)[3])[0]))
         return np.concatenate([r, *smooth])
 
     vrows = np.arange(n)
@@ -959,6 +998,15 @@ def _solve_joint(
                 ]
             )
         )
+        if priced:  # d (a_i col_i^c) / d angles_i, light-major rows as _color_prior_rows
+            a = lay.color_sqrt_weight
+            j_col = np.zeros((3 * n_ml, 2 * n_ml))
+            for i in range(n_ml):
+                j_col[3 * i : 3 * i + 3, 2 * i] = a[i] * d_t[i]
+                j_col[3 * i : 3 * i + 3, 2 * i + 1] = a[i] * d_p[i]
+            s_rows.append(
+                sp.hstack([sp.csr_matrix((3 * n_ml, n_rho + 3 * kc + km)), sp.csr_matrix(j_col)])
+            )
         return sp.vstack([j_data, *s_rows]).tocsr()
 
     x0 = np.concatenate(
@@ -1115,6 +1163,8 @@ def solve_lighting(
         for light in problem.lights
     ):
         raise SolveError("lower bounds on intensities need the joint solver (method='joint')")
+    if options.method == "alternating" and any(lt.color_prior_weight > 0 for lt in problem.lights):
+        raise SolveError("a colour prior needs the joint solver (method='joint')")
     t0 = time.perf_counter()
     notes: list[str] = []
     n_clusters = len(problem.cluster_names)
@@ -1153,11 +1203,21 @@ def solve_lighting(
     if not problem.lights:
         notes.append("no lights: albedos explain the radiance by indirect light alone")
     n_ml = len(lay.mono_lights)
+    color0 = np.full((n_ml, 3), 1.0 / np.sqrt(3.0))
+    lay.color_prior = color0.copy()
+    lay.color_sqrt_weight = np.zeros(n_ml)
+    # The scale of the colour priors' weights: the data term of a model off by 100 %.
+    data_energy = float(np.sum(data.w * data.m * data.L**2))
+    for i, light in enumerate(lay.mono_lights):
+        if light.color_prior_weight > 0:
+            c = np.asarray(light.color_prior, float)
+            lay.color_prior[i] = color0[i] = c / np.linalg.norm(c)
+            lay.color_sqrt_weight[i] = np.sqrt(light.color_prior_weight * data_energy)
     st = _State(
         rho=np.where(used[:, None], 0.5, np.nan) * np.ones((n_clusters, 3)),
         chrom=np.zeros((lay.n_chrom, 3)),
         profile=np.zeros(lay.n_mono),
-        color=np.full((n_ml, 3), 1.0 / np.sqrt(3.0)),
+        color=color0,
     )
     with _one_blas_thread():  # threaded BLAS on small vectors is 10x slower under load
         if options.method == "alternating":

@@ -1,0 +1,159 @@
+"""A light's colour from the edge of its clipped image in the photos, against the truth.
+
+Usage::
+
+    python benchmarks/bench_emitter_color.py SCAN [SCAN ...]
+
+``SCAN`` is a synthetic scan (or a ``reroom run`` folder of one) with ``hdr/``,
+``lights/lights.json`` and ``ground_truth/``. For each line and area light it runs what
+``reroom invert`` runs with ``InvertOptions.photo_color`` > 0
+(:mod:`reroom.invert.emitter_color`, via the pipeline's ``_line_photo_color`` and
+``_area_photo_color``), on the geometry the solve used (``invert/scene.json`` where the
+scan has one: a fused scan's tube is then the photos' axis; else ``lights.json``), and
+prints, next to the truth (read here, never by the pipeline):
+
+* the colour in the HDR mesh's units, taken to the truth's by the HDR's per-channel
+  scale ``k`` (the median over the frames of the true exposure over the HDR stage's;
+  ``reroom.invert.evaluate``'s ``radiance_scale``, a ratio of sums over the clustered
+  vertices, is within 2-3 % of it): what the solve gets;
+* the same measured with the frames' *true* exposures (``ground_truth.json``): the
+  method's own error, without the HDR stage's;
+* the true colour (the emitter's radiance, mean 1), the errors per channel, the bootstrap
+  spread, the edge pixels and frames used, and the seconds it took.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from reroom.invert import pipeline
+from reroom.rays import RayCaster
+from reroom.scan import load_scan
+
+
+def _radiance_scale(scan_dir: Path, true_scale: dict[int, np.ndarray]) -> np.ndarray:
+    """``k``: the HDR stage's radiance over the truth's per channel, the median over the
+    frames of the true exposure over the HDR's (its units are its exposures')."""
+    from reroom.invert.photos import frame_scale, read_frame_scales
+
+    _, scales = read_frame_scales(scan_dir)
+    ratios = [true_scale[i] / s for i in true_scale if (s := frame_scale(scales, i)) is not None]
+    return np.median(np.asarray(ratios), axis=0)
+
+
+def _geometries(scan_dir: Path) -> list[tuple[str, str, dict]]:
+    scene = scan_dir / "invert" / "scene.json"
+    src = scene if scene.is_file() else scan_dir / "lights" / "lights.json"
+    doc = json.loads(src.read_text())
+    out = []
+    for x in doc["lights"]:
+        if x["type"] in ("line", "area"):
+            g = x.get("geometry", x)
+            out.append((x["name"], x["type"], g))
+    return out
+
+
+def _nearest_truth(kind: str, g: dict, truth: list[dict]) -> dict | None:
+    here = np.asarray(g["centroid"] if kind == "area" else 0.5 * (np.add(g["p0"], g["p1"])), float)
+    best, dist = None, np.inf
+    for t in truth:
+        if t["type"] != kind or "radiance" not in t:
+            continue
+        c = (
+            np.mean([t["p0"], t["p1"]], axis=0)
+            if kind == "line"
+            else np.mean(np.asarray(t["corners"], float), axis=0)
+        )
+        d = float(np.linalg.norm(c - here))
+        if d < dist:
+            best, dist = t, d
+    return best
+
+
+def _pct(a: np.ndarray) -> str:
+    return "/".join(f"{100 * v:+.1f}" for v in a) + " %"
+
+
+def bench_scan(scan_dir: Path) -> None:
+    gt = json.loads((scan_dir / "ground_truth" / "ground_truth.json").read_text())
+    o = gt.get("options", {})
+    scan = load_scan(scan_dir, check_images=False)
+    mesh = scan.mesh
+    caster = RayCaster(mesh.vertices, mesh.faces)
+    true_scale = {f["index"]: np.asarray(f["scale"], float) for f in gt["frames"]}
+    k = _radiance_scale(scan_dir, true_scale)
+    print(f"\n### {scan_dir} ({o.get('mesh')} mesh, {len(scan.frames)} frames "
+          f"{o.get('width')}x{o.get('height')}, {o.get('spp')} spp; k = "
+          f"{np.round(k / k.mean(), 4).tolist()})\n")  # fmt: skip
+    print(
+        "| light | truth | photos (HDR, to the truth's units) | error | with true exposures "
+        "| error | spread | edge pixels / frames | s |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, kind, g in _geometries(scan_dir):
+        truth = _nearest_truth(kind, g, gt["lights"])
+        if truth is None:
+            continue
+        rad = np.asarray(truth["radiance"], float)
+        true = rad / rad.mean()
+        rows = []
+        t0 = time.perf_counter()
+        for scales in (None, true_scale):
+            notes: list[str] = []
+            real = pipeline._photo_color
+            if scales is not None:
+                # the same measurement with the true exposures in place of the HDR's
+
+                def with_true(scan_, name_, points, facing, caster_, notes_, real=real):
+                    import reroom.invert.photos as photos
+
+                    keep = photos.frame_scale
+                    photos.frame_scale = lambda _s, i: true_scale.get(i)
+                    try:
+                        return real(scan_, name_, points, facing, caster_, notes_)
+                    finally:
+                        photos.frame_scale = keep
+
+                pipeline._photo_color = with_true
+            try:
+                if kind == "line":
+                    found = pipeline._line_photo_color(scan_dir, mesh, name, g, notes)
+                else:
+                    found = pipeline._area_photo_color(scan_dir, caster, name, g, notes)
+            finally:
+                pipeline._photo_color = real
+            rows.append((found, notes))
+        seconds = (time.perf_counter() - t0) / 2
+        (hdr, hdr_notes), (tr, _) = rows
+        if hdr is None:
+            print(f"| {name} | {truth['name']} | none ({'; '.join(hdr_notes)}) | | | | | | |")
+            continue
+        c_hdr = hdr.color / k
+        c_hdr = c_hdr / c_hdr.mean()
+        c_tr = None if tr is None else tr.color
+        print(
+            f"| {name} | {np.round(true, 3).tolist()} | {np.round(c_hdr, 3).tolist()} | "
+            f"{_pct(c_hdr / true - 1)} | "
+            f"{'-' if c_tr is None else np.round(c_tr, 3).tolist()} | "
+            f"{'-' if c_tr is None else _pct(c_tr / true - 1)} | "
+            f"{np.round(hdr.spread, 3).tolist()} | {hdr.pixels} / {hdr.frames} | {seconds:.1f} |"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scans", nargs="+", type=Path)
+    args = ap.parse_args(argv)
+    for s in args.scans:
+        bench_scan(s)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

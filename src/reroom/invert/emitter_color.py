@@ -1,0 +1,231 @@
+"""A light's colour from the unsaturated edge of its clipped image in the photos.
+
+An auto-exposed room photo clips a tube or a panel (ten to a hundred times its white
+level) to a saturated blob, so the light's colour is not in the blob. It is at the
+blob's edge: a pixel the light covers by a few per cent (the lens's spread, the pixel's
+footprint, the renderer's filter) holds ``f L + (1 - f) L_bg`` below the white level,
+and its excess over the background beside it, ``f (L - L_bg)``, has the light's colour
+whatever ``f`` is, up to ``L_bg / L`` (a few per cent of the difference between the two
+colours for a light tens of times the white level). In the HDR stage's linear units
+(its response and per-channel exposures), the excess summed over every such pixel of
+every frame is the light's chromaticity in the HDR mesh's units, which is what the solve
+needs: the room's receivers cannot tell a tube's colour from a window's where both light
+the same walls (docs/invert.md, sessions 18 and 31); the photos can.
+
+Per frame: the pixels clipped in every channel that hold the light's projected sample
+points, grown to their connected blob; the edge, unsaturated pixels within
+``edge_px`` of the blob; the background, unsaturated pixels 3-6 pixels out, averaged
+locally (a normalised box filter), so a blob between a dark fixture and a lit ceiling
+gets each side's own. Written by hand: no library reads an emitter's colour from the
+fringe of its clipped image; the image operations are scipy.ndimage's, the occlusion
+rays Embree's (:class:`reroom.rays.RayCaster`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import ndimage
+
+from reroom.rays import RayCaster
+
+__all__ = ["EmitterColor", "emitter_color", "rectangle_points", "segment_points"]
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+@dataclass(frozen=True)
+class EmitterColor:
+    """The photos' colour of a light.
+
+    Attributes
+    ----------
+    color:
+        Chromaticity (mean 1) in the linear units of the frame scales given.
+    spread:
+        Half the 90 % interval of each channel over a bootstrap on the frames (same
+        units as ``color``): what the colour is good to.
+    pixels, frames:
+        Edge pixels used, and the frames they came from.
+    """
+
+    color: np.ndarray
+    spread: np.ndarray
+    pixels: int
+    frames: int
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready figures (for ``report.json``)."""
+        return {
+            "color": np.round(self.color, 4).tolist(),
+            "spread": np.round(self.spread, 4).tolist(),
+            "edge_pixels": self.pixels,
+            "frames": self.frames,
+        }
+
+
+def segment_points(p0: ArrayLike, p1: ArrayLike, n: int = 41) -> np.ndarray:
+    """``n`` points on a tube's axis, 5-95 % of the way from ``p0`` to ``p1``."""
+    a0, a1 = np.asarray(p0, float).reshape(3), np.asarray(p1, float).reshape(3)
+    t = np.linspace(0.05, 0.95, n)
+    return a0 + t[:, None] * (a1 - a0)
+
+
+def rectangle_points(
+    centroid: ArrayLike, axis_long: ArrayLike, axis_short: ArrayLike, size: ArrayLike, n: int = 7
+) -> np.ndarray:
+    """An ``n x n`` grid over the middle 80 % of a rectangular light."""
+    c = np.asarray(centroid, float).reshape(3)
+    a, b = np.asarray(axis_long, float).reshape(3), np.asarray(axis_short, float).reshape(3)
+    sa, sb = (0.4 * float(s) for s in np.asarray(size, float).reshape(2))
+    g = np.linspace(-1.0, 1.0, n)
+    u, v = np.meshgrid(g * sa, g * sb)
+    return c + u.reshape(-1, 1) * a + v.reshape(-1, 1) * b
+
+
+def _frame_edge(
+    img8: np.ndarray,
+    lin: np.ndarray,
+    uv: np.ndarray,
+    saturation: int,
+    edge_px: float,
+    excess_over_background: float,
+) -> tuple[np.ndarray, int]:
+    """Summed excess (3,) of one photo's edge pixels around the blob holding ``uv``."""
+    h, w = img8.shape[:2]
+    clipped = (img8 >= saturation).all(axis=2)
+    saturated = (img8 >= saturation).any(axis=2)
+    seeds = np.zeros((h, w), bool)
+    j = np.clip(uv[:, 0].astype(int), 0, w - 1)
+    i = np.clip(uv[:, 1].astype(int), 0, h - 1)
+    seeds[i, j] = True
+    seeds = ndimage.binary_dilation(seeds, iterations=1) & clipped
+    if not seeds.any():
+        return np.zeros(3), 0  # the light is not clipped here: hidden, or not bright
+    labels, _ = ndimage.label(clipped)
+    blob = np.isin(labels, np.unique(labels[seeds]))
+    dist = ndimage.distance_transform_edt(~blob)
+    edge = (dist > 0) & (dist <= edge_px) & ~saturated
+    ring = (dist >= edge_px + 1.0) & (dist <= edge_px + 4.0) & ~saturated
+    if not edge.any() or not ring.any():
+        return np.zeros(3), 0
+    # The background under each edge pixel: the mean of the ring within 4 pixels of it.
+    weight = ndimage.uniform_filter(ring.astype(float), size=9, mode="constant")
+    bg = np.stack(
+        [ndimage.uniform_filter(lin[..., c] * ring, size=9, mode="constant") for c in range(3)],
+        axis=-1,
+    )
+    edge &= weight > 1e-6
+    if not edge.any():
+        return np.zeros(3), 0
+    bg = bg[edge] / weight[edge][:, None]
+    excess = lin[edge] - bg
+    keep = excess @ LUMA >= excess_over_background * np.maximum(bg @ LUMA, 1e-12)
+    return excess[keep].sum(axis=0), int(np.count_nonzero(keep))
+
+
+def emitter_color(
+    frames: Sequence[Any],
+    load_image: Callable[[Any], np.ndarray | None],
+    frame_scale: Callable[[int], np.ndarray | None],
+    inverse_response: np.ndarray,
+    caster: RayCaster,
+    points: ArrayLike,
+    *,
+    facing: Callable[[np.ndarray], bool] | None = None,
+    saturation: int = 250,
+    edge_px: float = 1.5,
+    excess_over_background: float = 1.0,
+    min_pixels: int = 30,
+    min_frames: int = 3,
+    bootstrap: int = 200,
+    seed: int = 0,
+) -> EmitterColor | None:
+    """A light's chromaticity from the edges of its clipped image (module notes).
+
+    Parameters
+    ----------
+    frames:
+        :class:`reroom.scan.Frame` objects (``project``, ``center``).
+    load_image:
+        ``load_image(frame) -> (H, W, 3)`` 8-bit image, or None to skip the frame.
+    frame_scale:
+        ``frame_scale(index) -> (3,)`` the frame's linear pixel per unit radiance (the
+        HDR stage's exposures), or None to skip the frame.
+    inverse_response:
+        ``(256,)`` 8-bit level to linear value (the HDR stage's curve).
+    caster:
+        What may stand between a camera and the light (for a tube: the scan without
+        its fixture, whose block a fused scan closes around it).
+    points:
+        ``(N, 3)`` points on the light (:func:`segment_points`, :func:`rectangle_points`).
+    facing:
+        ``facing(camera_centre) -> bool``: whether a camera can see the light's emitting
+        side (default: every camera).
+    saturation:
+        8-bit level at or above which a channel counts as clipped. The blob is clipped
+        in every channel; an edge pixel in none.
+    edge_px:
+        Pixels from the blob counted as its edge.
+    excess_over_background:
+        An edge pixel's excess luminance over its background's, at least. A noisy
+        background (a path-traced ceiling's speckle) passes a low bar by its own
+        noise and lends the edge its colour: at 0.3 a grey panel under a warm ceiling
+        read 1.077/0.987/0.936, at 1 within 0.3 % (a 24-frame `furnished` scan).
+    min_pixels, min_frames:
+        Fewer edge pixels or frames than this give None.
+    bootstrap, seed:
+        Bootstrap resamplings of the frames for ``spread``, and their seed.
+
+    Returns
+    -------
+    EmitterColor or None
+        None when the photos hold too few edge pixels (a light exposed below
+        saturation, or one no frame sees).
+    """
+    pts = np.asarray(points, float).reshape(-1, 3)
+    lut = np.asarray(inverse_response, float)
+    sums, counts = [], []
+    for fr in frames:
+        c = np.asarray(fr.center, float)
+        if facing is not None and not facing(c):
+            continue
+        uv, _, inside = fr.project(pts)
+        if not inside.any():
+            continue
+        rays = pts - c
+        dist = np.linalg.norm(rays, axis=1)
+        hits = caster.intersect(np.repeat(c[None], len(pts), 0), rays / dist[:, None])
+        seen = inside & ~(hits.hit & (hits.t < dist - 0.05))
+        if not seen.any():
+            continue
+        scale = frame_scale(int(fr.index))
+        if scale is None:
+            continue
+        img = load_image(fr)
+        if img is None:
+            continue
+        img8 = np.asarray(img)
+        lin = lut[img8] / np.asarray(scale, float)
+        total, count = _frame_edge(img8, lin, uv[seen], saturation, edge_px, excess_over_background)
+        if count:
+            sums.append(total)
+            counts.append(count)
+    if len(sums) < min_frames or sum(counts) < min_pixels:
+        return None
+    per_frame = np.asarray(sums)
+    whole = per_frame.sum(axis=0)
+    if np.any(whole <= 0):
+        return None
+    rng = np.random.default_rng(seed)
+    draws = []
+    for _ in range(bootstrap):
+        pick = per_frame[rng.integers(0, len(per_frame), len(per_frame))].sum(axis=0)
+        if pick.mean() > 0:
+            draws.append(pick / pick.mean())
+    lo, hi = np.percentile(np.asarray(draws), [5, 95], axis=0)
+    return EmitterColor(whole / whole.mean(), 0.5 * (hi - lo), int(sum(counts)), len(sums))
