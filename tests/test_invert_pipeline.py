@@ -46,6 +46,21 @@ def _box_scan(root: Path, radiance: float = 0.3) -> Path:
 FAST = InvertOptions(rays_per_receiver=64, receiver_voxel=0.25, pictures=False)
 
 
+def _spy_on_solve_blocks(monkeypatch: pytest.MonkeyPatch) -> dict:
+    """The light blocks of every solve the pipeline runs, by name (the latest kept)."""
+    import reroom.invert.pipeline as pipeline
+
+    seen: dict = {}
+    solve = pipeline.solve_lighting
+
+    def spy(problem, *args, **kwargs):
+        seen.update({b.name: b for b in problem.lights})
+        return solve(problem, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "solve_lighting", spy)
+    return seen
+
+
 def test_closed_uniform_room_without_lights_has_white_walls(tmp_path: Path) -> None:
     # with no emitter, uniform radiance in a closed room means E_ind = pi L: albedo 1
     scan = _box_scan(tmp_path)
@@ -436,7 +451,6 @@ def test_a_sun_through_the_window_is_found_solved_and_drawn(tmp_path: Path, sunn
 def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import reroom.invert.pipeline as pipeline
 
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="window_smooth"):
@@ -449,14 +463,7 @@ def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
         run_invert(tmp_path / "nothing_here", None, alternating)
     assert not (tmp_path / "nothing_here").exists()
 
-    seen = {}
-    solve = pipeline.solve_lighting
-
-    def spy(problem, *args, **kwargs):
-        seen.update({b.name: b for b in problem.lights})
-        return solve(problem, *args, **kwargs)
-
-    monkeypatch.setattr(pipeline, "solve_lighting", spy)
+    seen = _spy_on_solve_blocks(monkeypatch)
     scan = _sunny_box_scan(tmp_path / "w", None)
     opts = dataclasses.replace(FAST, window_smooth=1e3, window_sun=False)
     result = run_invert(scan, None, opts)
@@ -552,14 +559,7 @@ def test_photo_colours_reach_the_solve_and_scene_json(
         return EmitterColor(measured[name], np.full(3, 0.005), 200, 10)
 
     monkeypatch.setattr(pipeline, "_photo_color", fake_color)
-    seen = {}
-    solve = pipeline.solve_lighting
-
-    def spy(problem, *args, **kwargs):
-        seen.update({b.name: b for b in problem.lights})
-        return solve(problem, *args, **kwargs)
-
-    monkeypatch.setattr(pipeline, "solve_lighting", spy)
+    seen = _spy_on_solve_blocks(monkeypatch)
     opts = dataclasses.replace(FAST, bins=8, photo_color=100.0)
     result = run_invert(scan, None, opts)
     doc = json.loads((scan / "invert" / "scene.json").read_text())

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import ndimage
 
+from reroom.invert.line_photos import points_in_view
 from reroom.rays import RayCaster
 
 __all__ = ["EmitterColor", "emitter_color", "rectangle_points", "segment_points"]
@@ -194,13 +195,7 @@ def emitter_color(
         c = np.asarray(fr.center, float)
         if facing is not None and not facing(c):
             continue
-        uv, _, inside = fr.project(pts)
-        if not inside.any():
-            continue
-        rays = pts - c
-        dist = np.linalg.norm(rays, axis=1)
-        hits = caster.intersect(np.repeat(c[None], len(pts), 0), rays / dist[:, None])
-        seen = inside & ~(hits.hit & (hits.t < dist - 0.05))
+        uv, _, seen = points_in_view(fr, caster, pts)
         if not seen.any():
             continue
         scale = frame_scale(int(fr.index))

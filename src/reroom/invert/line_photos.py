@@ -51,6 +51,7 @@ __all__ = [
     "TubeSighting",
     "cutoff_angle",
     "observe_tube",
+    "points_in_view",
     "trough_edges",
     "trough_fixture",
     "tube_extent",
@@ -137,6 +138,22 @@ def _frame_axes(p0: np.ndarray, p1: np.ndarray, up: ArrayLike) -> tuple[np.ndarr
         raise ValueError("up is parallel to the line light")
     u = u / np.linalg.norm(u)
     return dh, u, np.cross(dh, u)
+
+
+def points_in_view(
+    frame: Any, caster: RayCaster, points: np.ndarray, margin: float = 0.05
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where ``points`` project in ``frame`` (``uv``, ``depth``) and which it sees: inside
+    the image with nothing of ``caster`` nearer than ``margin`` before them."""
+    uv, depth, inside = frame.project(points)
+    seen = inside.copy()
+    if inside.any():
+        c = np.asarray(frame.center, float)
+        rays = points[inside] - c
+        dist = np.linalg.norm(rays, axis=1)
+        hits = caster.intersect(np.repeat(c[None], len(rays), 0), rays / dist[:, None])
+        seen[inside] = ~(hits.hit & (hits.t < dist - margin))
+    return uv, depth, seen
 
 
 def cutoff_angle(angles: ArrayLike, bright: ArrayLike, min_dark: int = 2) -> float | None:
@@ -241,13 +258,7 @@ def observe_tube(
         w = c - mid
         if w @ u >= 0:  # a camera level with or above the tube sees into its fixture's top
             continue
-        uv, depth, inside = fr.project(pts)
-        if not inside.any():
-            continue
-        dirs = pts - c
-        dist = np.linalg.norm(dirs, axis=1)
-        hits = caster.intersect(np.repeat(c[None], len(pts), 0), dirs / dist[:, None])
-        seen = inside & ~(hits.hit & (hits.t < dist - 0.05))
+        uv, depth, seen = points_in_view(fr, caster, pts)
         if not seen.any():
             continue
         img = load_image(fr)

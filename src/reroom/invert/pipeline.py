@@ -584,6 +584,19 @@ def _point_open_shape(
     return open_frac, {"open_fraction": np.round(open_frac, 4).tolist()}
 
 
+def _frame_loader(who: str, why: str, notes: list[str]):
+    """``load(frame)``: the frame's 8-bit image, or None with a note naming ``who``."""
+
+    def load(frame):
+        try:
+            return frame.load_image()
+        except (ReroomError, OSError, ValueError) as exc:
+            notes.append(f"{who}: frame {frame.index} skipped{' ' + why if why else ''} ({exc})")
+            return None
+
+    return load
+
+
 def _photo_color(
     scan: Path, name: str, points: np.ndarray, facing, caster: RayCaster, notes: list[str]
 ):
@@ -601,13 +614,7 @@ def _photo_color(
         notes.append(f"light {name!r}: no colour from the photos ({exc})")
         return None
 
-    def load(frame):
-        try:
-            return frame.load_image()
-        except (ReroomError, OSError, ValueError) as exc:
-            notes.append(f"light {name!r}: frame {frame.index} skipped for its colour ({exc})")
-            return None
-
+    load = _frame_loader(f"light {name!r}", "for its colour", notes)
     found = emitter_color(
         sc.frames, load, lambda i: frame_scale(scales, i), lut, caster, points, facing=facing
     )
@@ -690,13 +697,7 @@ def _photo_trough(
         notes.append(f"line light {name!r}: the scan holds nothing but its fixture")
         return None
 
-    def load(frame):
-        try:
-            return frame.load_image()
-        except (ReroomError, OSError, ValueError) as exc:
-            notes.append(f"line light {name!r}: frame {frame.index} skipped ({exc})")
-            return None
-
+    load = _frame_loader(f"line light {name!r}", "", notes)
     tube = observe_tube(frames, load, others, p0, p1, up)
     summary = tube.summary()
     if tube.residual_m is None or tube.radius is None:
