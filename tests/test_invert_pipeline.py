@@ -581,3 +581,12 @@ def test_photo_colours_reach_the_solve_and_scene_json(
     measured.pop("panel")
     run_invert(scan, tmp_path / "half", opts)
     assert not seen["panel"].monochrome and seen["tube"].color_prior_weight == 100.0
+    # nor one that varies too much between frames (_photo_color's gate)
+    noisy = EmitterColor(np.array([0.9, 1.0, 1.1]), np.array([0.01, 0.01, 0.03]), 200, 10)
+    notes: list[str] = []
+    assert pipeline._checked_photo_color("tube", noisy, notes) is None
+    assert "varies by +-3.0 %" in notes[-1], notes
+    good = EmitterColor(np.array([0.9, 1.0, 1.1]), np.full(3, 0.01), 200, 10)
+    assert pipeline._checked_photo_color("tube", good, notes) is good
+    assert pipeline._checked_photo_color("tube", None, notes) is None
+    assert "too few unsaturated pixels" in notes[-1]

@@ -482,8 +482,10 @@ def emitter_surfaces(
 #: Tube radius (metres) assumed for a line light whose geometry has none (a T8 tube).
 DEFAULT_TUBE_RADIUS = 0.013
 #: A light's colour from the photos varying more than this between frames (half its 90 %
-#: bootstrap interval, per channel) is not used (reroom.invert.emitter_color).
-MAX_PHOTO_COLOR_SPREAD = 0.05
+#: bootstrap interval, per channel) is not used (reroom.invert.emitter_color): the demo's
+#: 16-spp 160x120 frames gave the panel's colour to +-2.4-4.1 % and 5 % off in blue,
+#: which the solve then took; 64 spp at 320x180 and 256 spp at 160x120 give 0.1-1.4 %.
+MAX_PHOTO_COLOR_SPREAD = 0.02
 
 
 def _line_open_shape(
@@ -618,6 +620,12 @@ def _photo_color(
     found = emitter_color(
         sc.frames, load, lambda i: frame_scale(scales, i), lut, caster, points, facing=facing
     )
+    return _checked_photo_color(name, found, notes)
+
+
+def _checked_photo_color(name: str, found, notes: list[str]):
+    """``found`` if the solve may use it; None, with a note, when the photos gave no
+    colour or one that varies more than ``MAX_PHOTO_COLOR_SPREAD`` between frames."""
     if found is None:
         notes.append(
             f"light {name!r}: the photos show too few unsaturated pixels at the edge of its "
