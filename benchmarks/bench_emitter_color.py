@@ -19,19 +19,28 @@ prints, next to the truth (read here, never by the pipeline):
 * the same measured with the frames' *true* exposures (``ground_truth.json``): the
   method's own error, without the HDR stage's;
 * the true colour (the emitter's radiance, mean 1), the errors per channel, the bootstrap
-  spread, the edge pixels and frames used, and the seconds it took.
+  spread, the edge pixels and frames used, whether the pipeline would use the colour
+  (its spread gate, ``MAX_PHOTO_COLOR_SPREAD``), and the seconds it took.
+
+``--excess-over-background X`` and ``--edge-px P`` measure with other settings of
+:func:`reroom.invert.emitter_color.emitter_color` than its defaults (1 and 1.5).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import sys
 import time
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 
+import reroom.invert.emitter_color as emitter_module
+import reroom.invert.photos as photos
 from reroom.invert import pipeline
 from reroom.rays import RayCaster
 from reroom.scan import load_scan
@@ -80,7 +89,7 @@ def _pct(a: np.ndarray) -> str:
     return "/".join(f"{100 * v:+.1f}" for v in a) + " %"
 
 
-def bench_scan(scan_dir: Path) -> None:
+def bench_scan(scan_dir: Path, measure: dict | None = None) -> None:
     gt = json.loads((scan_dir / "ground_truth" / "ground_truth.json").read_text())
     o = gt.get("options", {})
     scan = load_scan(scan_dir, check_images=False)
@@ -93,9 +102,9 @@ def bench_scan(scan_dir: Path) -> None:
           f"{np.round(k / k.mean(), 4).tolist()})\n")  # fmt: skip
     print(
         "| light | truth | photos (HDR, to the truth's units) | error | with true exposures "
-        "| error | spread | edge pixels / frames | s |"
+        "| error | spread | edge pixels / frames | used by the solve | s |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, kind, g in _geometries(scan_dir):
         truth = _nearest_truth(kind, g, gt["lights"])
         if truth is None:
@@ -106,34 +115,35 @@ def bench_scan(scan_dir: Path) -> None:
         t0 = time.perf_counter()
         for scales in (None, true_scale):
             notes: list[str] = []
-            real = pipeline._photo_color
-            if scales is not None:
-                # the same measurement with the true exposures in place of the HDR's
-
-                def with_true(scan_, name_, points, facing, caster_, notes_, real=real):
-                    import reroom.invert.photos as photos
-
-                    keep = photos.frame_scale
-                    photos.frame_scale = lambda _s, i: true_scale.get(i)
-                    try:
-                        return real(scan_, name_, points, facing, caster_, notes_)
-                    finally:
-                        photos.frame_scale = keep
-
-                pipeline._photo_color = with_true
-            try:
+            with contextlib.ExitStack() as stack:
+                # every measurement, also one the pipeline's spread gate would not use
+                stack.enter_context(
+                    mock.patch.object(pipeline, "_checked_photo_color", lambda _n, f, _notes: f)
+                )
+                if measure:  # the measurement's settings, as given on the command line
+                    stack.enter_context(
+                        mock.patch.object(
+                            emitter_module,
+                            "emitter_color",
+                            functools.partial(emitter_module.emitter_color, **measure),
+                        )
+                    )
+                if scales is not None:  # the true exposures in place of the HDR stage's
+                    stack.enter_context(
+                        mock.patch.object(photos, "frame_scale", lambda _s, i: true_scale.get(i))
+                    )
                 if kind == "line":
                     found = pipeline._line_photo_color(scan_dir, mesh, name, g, notes)
                 else:
                     found = pipeline._area_photo_color(scan_dir, caster, name, g, notes)
-            finally:
-                pipeline._photo_color = real
             rows.append((found, notes))
         seconds = (time.perf_counter() - t0) / 2
         (hdr, hdr_notes), (tr, _) = rows
         if hdr is None:
-            print(f"| {name} | {truth['name']} | none ({'; '.join(hdr_notes)}) | | | | | | |")
+            why = "; ".join(hdr_notes) or "too few edge pixels or frames"
+            print(f"| {name} | {truth['name']} | none ({why}) | | | | | | | |")
             continue
+        used = pipeline._checked_photo_color(name, hdr, []) is not None
         c_hdr = hdr.color / k
         c_hdr = c_hdr / c_hdr.mean()
         c_tr = None if tr is None else tr.color
@@ -142,16 +152,27 @@ def bench_scan(scan_dir: Path) -> None:
             f"{_pct(c_hdr / true - 1)} | "
             f"{'-' if c_tr is None else np.round(c_tr, 3).tolist()} | "
             f"{'-' if c_tr is None else _pct(c_tr / true - 1)} | "
-            f"{np.round(hdr.spread, 3).tolist()} | {hdr.pixels} / {hdr.frames} | {seconds:.1f} |"
+            f"{np.round(hdr.spread, 3).tolist()} | {hdr.pixels} / {hdr.frames} | "
+            f"{'yes' if used else 'no (spread)'} | {seconds:.1f} |"
         )
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scans", nargs="+", type=Path)
+    ap.add_argument("--excess-over-background", type=float, default=None)
+    ap.add_argument("--edge-px", type=float, default=None)
     args = ap.parse_args(argv)
+    measure = {
+        k: v
+        for k, v in (
+            ("excess_over_background", args.excess_over_background),
+            ("edge_px", args.edge_px),
+        )
+        if v is not None
+    }
     for s in args.scans:
-        bench_scan(s)
+        bench_scan(s, measure)
     return 0
 
 

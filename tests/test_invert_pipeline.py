@@ -590,3 +590,26 @@ def test_photo_colours_reach_the_solve_and_scene_json(
     assert pipeline._checked_photo_color("tube", good, notes) is good
     assert pipeline._checked_photo_color("tube", None, notes) is None
     assert "too few unsaturated pixels" in notes[-1]
+
+
+def test_photo_colours_from_a_scan_without_photos_or_axes_leave_a_note(tmp_path: Path) -> None:
+    """No frames or exposures to read, or an area light without its axes: the solve keeps
+    each light's own colour, and the notes say why, naming what is missing."""
+    from reroom.lights.lightset import Light, LightSet, write_lights
+
+    scan = _box_scan(tmp_path, radiance=0.3)
+    nv = len(read_ply(scan / "hdr" / "hdr_mesh.ply").vertices)
+    geom = {"p0": [1.0, 1.25, 2.2], "p1": [2.0, 1.25, 2.2], "d_perp": [0, 0, 1.0], "radius": 0.02}
+    panel = {"centroid": [1.5, 0.6, 2.39], "normal": [0, 0, -1.0], "area": 0.16}
+    lights = [
+        Light("tube", "line", "user", geom, {}, "test"),
+        Light("panel", "area", "user", panel, {}, "test"),
+    ]
+    write_lights(LightSet(lights, [], np.full(nv, -1, np.int32)), scan / "lights")
+    result = run_invert(scan, None, dataclasses.replace(FAST, bins=8, photo_color=1.0))
+    notes = [w for w in result.warnings if "no colour from the photos" in w]
+    assert any("'tube'" in w and "transforms.json" in w for w in notes), notes
+    assert any("'panel'" in w and "axis_long" in w for w in notes), notes
+    assert not any(b.color_prior_weight > 0 for b in result.lights)
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    assert not any("color_from_photos" in e for e in doc["lights"])

@@ -14,9 +14,9 @@ the same walls (docs/invert.md, sessions 18 and 31); the photos can.
 
 Per frame: the pixels clipped in every channel that hold the light's projected sample
 points, grown to their connected blob; the edge, unsaturated pixels within
-``edge_px`` of the blob; the background, unsaturated pixels 3-6 pixels out, averaged
-locally (a normalised box filter), so a blob between a dark fixture and a lit ceiling
-gets each side's own. Written by hand: no library reads an emitter's colour from the
+``edge_px`` of the blob; the background, unsaturated pixels ``edge_px + 1`` to
+``edge_px + 4`` out, averaged within 4 pixels of each edge pixel (a normalised box
+filter), so a blob between a dark fixture and a lit ceiling gets each side's own. Written by hand: no library reads an emitter's colour from the
 fringe of its clipped image; the image operations are scipy.ndimage's, the occlusion
 rays Embree's (:class:`reroom.rays.RayCaster`).
 """
@@ -60,7 +60,7 @@ class EmitterColor:
     frames: int
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready figures (for ``report.json``)."""
+        """JSON-ready figures (``scene.json``'s ``color_from_photos``)."""
         return {
             "color": np.round(self.color, 4).tolist(),
             "spread": np.round(self.spread, 4).tolist(),
@@ -176,7 +176,8 @@ def emitter_color(
         An edge pixel's excess luminance over its background's, at least. A noisy
         background (a path-traced ceiling's speckle) passes a low bar by its own
         noise and lends the edge its colour: at 0.3 a grey panel under a warm ceiling
-        read 1.077/0.987/0.936, at 1 within 0.3 % (a 24-frame `furnished` scan).
+        read 1.072/0.993/0.935, at 1 within 0.2 % (a 24-frame `furnished` scan, the true
+        exposures; ``benchmarks/bench_emitter_color.py --excess-over-background``).
     min_pixels, min_frames:
         Fewer edge pixels or frames than this give None.
     bootstrap, seed:

@@ -950,11 +950,11 @@ def _solve_joint(
         return rho, chrom, prof, col, d_t, d_p, irr, rv
 
     def fun(x: np.ndarray) -> np.ndarray:
-        _, chrom, prof, _, _, _, irr, rv = parts(x)
+        _, chrom, prof, col, _, _, irr, rv = parts(x)
         r = (sqw * (rv * irr - data.L)).T.ravel()
         smooth = [(sc @ chrom - lay.chrom_rhs).T.ravel(), sm @ prof]
         if priced:
-            smooth.append(_color_prior_rows(lay, _color_of(unpack(x)[3])[0]))
+            smooth.append(_color_prior_rows(lay, col))
         return np.concatenate([r, *smooth])
 
     vrows = np.arange(n)
