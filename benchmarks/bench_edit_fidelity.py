@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/bench_edit_fidelity.py SCAN --out DIR [--spp 256] [--truth-spp 256]
         [--frames 5,15,40] [--edits empty,light_off] [--docs-images docs/images]
-        [--no-denoise]
+        [--no-denoise] [--window-maps-from OTHER_RUN]
 
 ``SCAN`` is a synthetic scan with a recovered model (``hdr/``, ``layout/``, ``lights/``,
 ``invert/``, e.g. ``/tmp/e2e2`` copied) and its ``ground_truth/``. For each edit set
@@ -49,6 +49,10 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
   shares by surface (wall, floor, ceiling, other; :func:`error_breakdown`), and the ratio
   of means per surface there (the surface as the scan mesh labels it: after ``empty``, what
   was furniture counts as "other").
+
+``--window-maps-from OTHER_RUN`` renders a composite: SCAN's model with each window's map
+(``invert/window_<name>.exr``) taken from another run of the same scan, e.g. one solved
+with 8x8 cells (:func:`composite_window_maps`; docs/benchmarks.md, session 34).
 
 ``DIR/strips/`` gets ``ours | truth | error`` PNGs per view, ``DIR/fidelity.json`` every
 figure (written after each edit). Truth renders are cached in ``DIR`` (keyed by edit,
@@ -339,6 +343,40 @@ def light_share(off: np.ndarray, ref: np.ndarray, label: np.ndarray) -> dict[str
     return out
 
 
+def composite_window_maps(run: Path, donor: Path, dest: Path) -> Path:
+    """A run folder that is ``run`` but for its windows' maps, taken from ``donor``.
+
+    Every entry of ``run`` is linked into ``dest`` except ``invert/``, which is copied,
+    and each window's map (``scene.json``'s ``environment_exr``) is replaced by the
+    donor's file of the same name: ``run``'s lights, albedos and textures with
+    ``donor``'s window, e.g. the 8x8 cells of another solve (docs/benchmarks.md,
+    session 34). Both must be runs of the same scan.
+    """
+    import shutil
+
+    doc = json.loads((run / "invert" / "scene.json").read_text())
+    maps = [
+        str(light.get("environment_exr", f"window_{light['name']}.exr"))
+        for light in doc.get("lights", [])
+        if light.get("type") == "window"
+    ]
+    if not maps:
+        raise SystemExit(f"{run / 'invert' / 'scene.json'} has no window to take a map for")
+    missing = [m for m in maps if not (donor / "invert" / m).is_file()]
+    if missing:
+        raise SystemExit(f"{donor / 'invert'} lacks the window maps {', '.join(missing)}")
+    if dest.exists():
+        shutil.rmtree(dest)
+    dest.mkdir(parents=True)
+    for entry in run.iterdir():
+        if entry.name != "invert":
+            (dest / entry.name).symlink_to(entry.resolve())
+    shutil.copytree(run / "invert", dest / "invert")
+    for m in maps:
+        shutil.copyfile(donor / "invert" / m, dest / "invert" / m)
+    return dest
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -367,6 +405,13 @@ def main() -> None:
         help="noise floor (second truth render) for every edit (default) or only the reference row",
     )
     ap.add_argument("--docs-images", type=Path, default=None, help="write fidelity_*.png here")
+    ap.add_argument(
+        "--window-maps-from",
+        type=Path,
+        default=None,
+        help="another run of the same scan whose invert/window_*.exr replace SCAN's (a "
+        "composite: SCAN's lights, albedos and textures, that run's window maps)",
+    )
     args = ap.parse_args()
 
     from reroom.edit.metrics import comparison_strip, relative_rmse, ssim_tonemapped
@@ -379,6 +424,9 @@ def main() -> None:
     scan_dir: Path = args.scan
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
+    if args.window_maps_from is not None:
+        scan_dir = composite_window_maps(scan_dir, args.window_maps_from, out / "composite")
+        print(f"window maps from {args.window_maps_from}: composite model in {scan_dir}")
     gt_scene = scan_dir / "ground_truth" / "scene"
     gt = json.loads((scan_dir / "ground_truth" / "ground_truth.json").read_text())
     truth_desc = load_scene_description(gt_scene)
@@ -457,7 +505,11 @@ def main() -> None:
         str(scan_dir.resolve()),
         *(
             hashlib.sha1(f.read_bytes()).hexdigest()
-            for f in (scan_dir / "invert" / "scene.json", scan_dir / "lights" / "lights.json")
+            for f in (
+                scan_dir / "invert" / "scene.json",
+                scan_dir / "lights" / "lights.json",
+                *sorted((scan_dir / "invert").glob("window_*.exr")),
+            )
             if f.is_file()
         ),
         *(hashlib.sha1(f.read_bytes()).hexdigest() for f in code),

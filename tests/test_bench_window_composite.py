@@ -1,0 +1,52 @@
+"""The fidelity benchmark's composite model: one run's model with another run's window maps."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_edit_fidelity.py"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_edit_fidelity", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(root: Path, window_bytes: bytes, lights: list[dict]) -> Path:
+    (root / "invert" / "textures").mkdir(parents=True)
+    (root / "hdr").mkdir()
+    (root / "hdr" / "exposures.json").write_text("{}")
+    (root / "invert" / "scene.json").write_text(json.dumps({"lights": lights}))
+    (root / "invert" / "textures" / "wall.exr").write_bytes(b"texture of " + root.name.encode())
+    (root / "invert" / "window_window0.exr").write_bytes(window_bytes)
+    return root
+
+
+def test_composite_takes_only_the_window_maps_from_the_donor(tmp_path):
+    lights = [{"name": "area0", "type": "area"}, {"name": "window0", "type": "window"}]
+    run = _run(tmp_path / "run", b"4x4 cells", lights)
+    donor = _run(tmp_path / "donor", b"8x8 cells", lights)
+    out = _bench().composite_window_maps(run, donor, tmp_path / "composite")
+    assert (out / "invert" / "window_window0.exr").read_bytes() == b"8x8 cells"
+    assert (out / "invert" / "textures" / "wall.exr").read_bytes() == b"texture of run"
+    assert (out / "hdr").is_symlink() and (out / "hdr").resolve() == (run / "hdr").resolve()
+    # The run itself is left as it was.
+    assert (run / "invert" / "window_window0.exr").read_bytes() == b"4x4 cells"
+
+
+def test_composite_refuses_a_donor_without_the_map_or_a_run_without_a_window(tmp_path):
+    bench = _bench()
+    run = _run(tmp_path / "run", b"4x4", [{"name": "window0", "type": "window"}])
+    donor = tmp_path / "donor"
+    (donor / "invert").mkdir(parents=True)
+    with pytest.raises(SystemExit, match="window_window0.exr"):
+        bench.composite_window_maps(run, donor, tmp_path / "c1")
+    bare = _run(tmp_path / "bare", b"-", [{"name": "area0", "type": "area"}])
+    with pytest.raises(SystemExit, match="no window"):
+        bench.composite_window_maps(bare, run, tmp_path / "c2")
