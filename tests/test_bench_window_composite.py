@@ -1,4 +1,5 @@
-"""The fidelity benchmark's composite model: one run's model with another run's window maps."""
+"""The benchmarks' helpers: the fidelity composite (one run's model with another run's window
+maps) and the window-cell comparison's input checks."""
 
 from __future__ import annotations
 
@@ -50,3 +51,17 @@ def test_composite_refuses_a_donor_without_the_map_or_a_run_without_a_window(tmp
     bare = _run(tmp_path / "bare", b"-", [{"name": "area0", "type": "area"}])
     with pytest.raises(SystemExit, match="no window"):
         bench.composite_window_maps(bare, run, tmp_path / "c2")
+
+
+def test_window_cells_benchmark_names_what_is_missing(tmp_path):
+    spec = importlib.util.spec_from_file_location(
+        "bench_window_cells", BENCH.parent / "bench_window_cells.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    with pytest.raises(SystemExit, match="scene.json is missing"):
+        module.solved_cells(tmp_path, "window0")
+    (tmp_path / "invert").mkdir()
+    (tmp_path / "invert" / "scene.json").write_text(json.dumps({"lights": [{"name": "area0"}]}))
+    with pytest.raises(SystemExit, match="no window named 'window0'"):
+        module.solved_cells(tmp_path, "window0")
