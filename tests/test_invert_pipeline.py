@@ -613,3 +613,45 @@ def test_photo_colours_from_a_scan_without_photos_or_axes_leave_a_note(tmp_path:
     assert not any(b.color_prior_weight > 0 for b in result.lights)
     doc = json.loads((scan / "invert" / "scene.json").read_text())
     assert not any("color_from_photos" in e for e in doc["lights"])
+
+
+def test_render_window_cells_give_the_renders_a_finer_window(tmp_path: Path) -> None:
+    from reroom.io.images import read_exr
+
+    for bad in (-1, -8):
+        with pytest.raises(ValueError, match="render_window_cells"):
+            run_invert(tmp_path / "nothing_here", None, InvertOptions(render_window_cells=bad))
+    with pytest.raises(ValueError, match="render_window_smooth"):
+        run_invert(tmp_path / "nothing_here", None, InvertOptions(render_window_smooth=-1.0))
+    assert not (tmp_path / "nothing_here").exists()
+
+    scan = _sunny_box_scan(tmp_path / "w", None)
+    opts = dataclasses.replace(FAST, window_sun=False, render_window_cells=0)
+    coarse = run_invert(scan, tmp_path / "coarse", opts)
+    fine = run_invert(scan, tmp_path / "fine", dataclasses.replace(opts, render_window_cells=8))
+    assert coarse.render_windows == {} and set(fine.render_windows) == {"window0"}
+    # the solve itself, and every figure scene.json evaluates, are the coarse solve's
+    np.testing.assert_array_equal(
+        fine.solve.intensities["window0"], coarse.solve.intensities["window0"]
+    )
+    np.testing.assert_array_equal(fine.solve.albedo, coarse.solve.albedo)
+    entries = {}
+    for name in ("coarse", "fine"):
+        scene = json.loads((tmp_path / name / "scene.json").read_text())
+        entries[name] = scene["lights"][0]
+    assert "render_distribution" not in entries["coarse"]
+    assert entries["fine"]["distribution"] == entries["coarse"]["distribution"]
+    assert entries["fine"]["power"] == entries["coarse"]["power"]
+    render = entries["fine"]["render_distribution"]
+    assert render["n"] == 8 and len(render["cells"]) == 6 * 64 and len(render["support"]) == 384
+    assert render["objective"] <= render["objective_at_solved_cells"] * (1 + 1e-9)
+    # the renders' map is the fine one, the cells' picture the coarse one
+    env = read_exr(tmp_path / "fine" / entries["fine"]["environment_exr"])[..., :3]
+    cells = read_exr(tmp_path / "fine" / entries["fine"]["environment_cells_exr"])[..., :3]
+    same = read_exr(tmp_path / "coarse" / entries["coarse"]["environment_cells_exr"])[..., :3]
+    np.testing.assert_allclose(cells, same)
+    assert not np.allclose(env, cells)
+    # the per-vertex albedos were divided by the fine model's irradiance
+    assert any("render window window0: refitted" in w for w in fine.warnings)
+    seen = np.isfinite(fine.albedo).all(axis=1) & np.isfinite(coarse.albedo).all(axis=1)
+    assert seen.sum() > 100 and not np.allclose(fine.albedo[seen], coarse.albedo[seen])

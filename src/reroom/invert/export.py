@@ -436,10 +436,16 @@ def window_cells(result, name: str, support, min_bin_support: float) -> np.ndarr
     sees, get the harmonic interpolation of the well-seen cells over the cube map's
     adjacency. ``support`` None: the solved cells.
     """
-    solved = np.asarray(result.solve.intensities[name], np.float64)
+    return filled_cells(result.solve.intensities[name], result.cubemap_n, support, min_bin_support)
+
+
+def filled_cells(solved, n: int, support, min_bin_support: float) -> np.ndarray:
+    """:func:`window_cells` for any ``(6 n^2, 3)`` solved cells (e.g. a render window's,
+    :mod:`reroom.invert.render_window`)."""
+    solved = np.asarray(solved, np.float64)
     if support is None:
         return solved.copy()
-    pairs = CubemapBasis(result.cubemap_n).adjacency()
+    pairs = CubemapBasis(n).adjacency()
     sup = np.asarray(support, np.float64)
     return np.stack(
         [fill_poorly_seen(solved[:, c], sup, min_bin_support, pairs, "fill") for c in range(3)],
@@ -538,11 +544,34 @@ def light_entries(
                 }
                 power = power + sun_flux
             e["power"] = power.tolist()
+            fine = getattr(result, "render_windows", {}).get(block.name)
+            render_cells, render_basis = cells, basis
+            if fine is not None:  # InvertOptions.render_window_cells
+                render_basis = CubemapBasis(fine.n)
+                render_cells = filled_cells(fine.cells, fine.n, fine.support, min_bin_support)
+                e["render_distribution"] = {
+                    "basis": "cubemap",
+                    "n": fine.n,
+                    "cells": render_cells.tolist(),
+                    "cells_solved": np.asarray(fine.cells).tolist(),
+                    "support": [float(x) for x in fine.support],
+                    "direction_convention": e["distribution"]["direction_convention"],
+                    "refit": "alone, every other light held at its solved intensities",
+                    "objective_at_solved_cells": fine.objective_coarse,
+                    "objective": fine.objective_fine,
+                    "cluster_albedo_of_refit": np.nan_to_num(fine.albedo, nan=-1.0).tolist(),
+                    "power": window_power(
+                        render_cells, render_basis, n_in, _window_area(g)
+                    ).tolist(),
+                    "used_by": "environment_exr, the textures and the per-vertex albedos",
+                }
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)
                 write_exr(out / f"window_{block.name}_cells.exr", ll)
                 photo = window_maps.get(block.name)
-                env = ll if photo is None else photo[0]
+                env = (
+                    latlong_from_cubemap(render_cells, render_basis) if photo is None else photo[0]
+                )
                 if sun is not None:
                     env = add_sun_to_map(env, sun_dir, sun_irr)
                 write_exr(out / f"window_{block.name}.exr", env)
@@ -642,8 +671,13 @@ def window_photo_maps(
         opening = WindowOpening(
             block.name, *(np.asarray(g[k], float) for k in ("centre", "half_u", "half_v", "normal"))
         )
-        cells = window_cells(result, block.name, info.get("support"), min_bin_support)
-        wins.append((block.name, opening, cells))
+        fine = getattr(result, "render_windows", {}).get(block.name)
+        if fine is None:
+            cells = window_cells(result, block.name, info.get("support"), min_bin_support)
+            wins.append((block.name, opening, cells, CubemapBasis(result.cubemap_n)))
+        else:  # the render window's finer cells (reroom.invert.render_window)
+            cells = filled_cells(fine.cells, fine.n, fine.support, min_bin_support)
+            wins.append((block.name, opening, cells, CubemapBasis(fine.n)))
     if not wins:
         return {}, []
     basis = CubemapBasis(result.cubemap_n)
@@ -653,7 +687,7 @@ def window_photo_maps(
         from reroom.invert.window_env import WindowView
 
         out = {}
-        for name, opening, cells in wins:
+        for name, opening, cells, _ in wins:
             wv = WindowView.load(view[0], basis, opening.normal, view[1])
             out[name] = (
                 wv.environment(cells, basis, height),
@@ -662,7 +696,7 @@ def window_photo_maps(
         return out, []
     try:
         maps, infos, stats = photo_environments(
-            scan_dir, mesh, [(o, c) for _, o, c in wins], basis, height=height
+            scan_dir, mesh, [(o, c) for _, o, c, _ in wins], [b for *_, b in wins], height=height
         )
     except (ReroomError, OSError, ValueError) as exc:
         return {}, [f"window photos: not used, the windows render their cells ({exc})"]
@@ -671,7 +705,7 @@ def window_photo_maps(
     frames["frames_unreadable"] = len(stats["frames_unreadable"])
     return {
         name: (env, {**info, **frames, "height": height})
-        for (name, _, _), env, info in zip(wins, maps, infos, strict=True)
+        for (name, *_), env, info in zip(wins, maps, infos, strict=True)
     }, notes
 
 

@@ -724,7 +724,7 @@ def photo_environments(
     scan_dir: str | Path,
     mesh,
     windows: list[tuple[WindowOpening, np.ndarray]],
-    basis: CubemapBasis,
+    basis: CubemapBasis | list[CubemapBasis],
     *,
     height: int = 128,
     caster=None,
@@ -733,16 +733,20 @@ def photo_environments(
 ) -> tuple[list[np.ndarray], list[dict[str, Any]], dict[str, Any]]:
     """Rendering maps of windows from the photos and their solved cells.
 
-    ``windows`` pairs each opening with its ``(6 n^2, 3)`` solved cells. Returns the
+    ``windows`` pairs each opening with its ``(6 n^2, 3)`` solved cells, on ``basis``
+    (one for all, or one per window). Returns the
     maps (:func:`refine_cells`, after :func:`fill_gaps` if ``fill``), a dict of figures per window (with its ``samples`` and
     ``saturated`` counts), and the frame statistics of :func:`observe_windows`.
     """
     photos, stats = observe_windows(
         scan_dir, mesh, [w for w, _ in windows], height=height, caster=caster, **observe
     )
+    bases = list(basis) if isinstance(basis, list | tuple) else [basis] * len(windows)
+    if len(bases) != len(windows):
+        raise ValueError(f"{len(bases)} bases for {len(windows)} windows")
     maps, infos = [], []
     for k, ((_, cells), ph) in enumerate(zip(windows, photos, strict=True)):
-        env, info = refine_cells(cells, basis, fill_gaps(ph) if fill else ph)
+        env, info = refine_cells(cells, bases[k], fill_gaps(ph) if fill else ph)
         info["samples"] = stats["samples"][k]
         info["saturated"] = stats["saturated"][k]
         maps.append(env)
