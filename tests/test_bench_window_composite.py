@@ -65,3 +65,36 @@ def test_window_cells_benchmark_names_what_is_missing(tmp_path):
     (tmp_path / "invert" / "scene.json").write_text(json.dumps({"lights": [{"name": "area0"}]}))
     with pytest.raises(SystemExit, match="no window named 'window0'"):
         module.solved_cells(tmp_path, "window0")
+    (tmp_path / "invert" / "scene.json").write_text(
+        json.dumps({"lights": [{"name": "window0", "type": "window", "distribution": {}}]})
+    )
+    with pytest.raises(SystemExit, match="has no render_distribution"):
+        module.solved_cells(tmp_path, "window0", render=True)
+
+
+def test_window_view_benchmark_turns_as_the_evaluation_and_names_what_is_missing(
+    tmp_path, monkeypatch
+):
+    import sys
+
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location(
+        "bench_window_view", BENCH.parent / "bench_window_view.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    # reroom.invert.evaluate turns the HDRI's texel directions by +rotation_deg about +Z
+    # (+x to +y at 90 degrees); the benchmark turns a pixel's direction back.
+    np.testing.assert_allclose(
+        module._turn_z(np.array([[1.0, 0.0, 0.0]]), 90.0), [[0, 1, 0]], atol=1e-12
+    )
+    d = np.random.default_rng(0).normal(size=(20, 3))
+    np.testing.assert_allclose(module._turn_z(module._turn_z(d, 37.0), -37.0), d, atol=1e-12)
+    monkeypatch.setattr(sys, "argv", ["bench_window_view.py", str(tmp_path)])
+    with pytest.raises(SystemExit, match="scene.json is missing"):
+        module.main()
+    (tmp_path / "invert").mkdir()
+    (tmp_path / "invert" / "scene.json").write_text(json.dumps({"lights": []}))
+    with pytest.raises(SystemExit, match="a synthetic scan's truth is needed"):
+        module.main()

@@ -122,3 +122,37 @@ def test_bad_inputs_are_refused() -> None:
         refit_window(problem, coarse, blocks, 0, f_fine, FINE, COARSE, 1.0, SolveOptions())
     with pytest.raises(ValueError, match="fine transfer has shape"):
         refit_window(problem, coarse, blocks, 1, f_fine[:, :10], FINE, COARSE, 1.0, SolveOptions())
+
+
+def test_photo_bounds_hold_up_the_cells_the_room_cannot_see() -> None:
+    truth = _fine_sky()
+    problem, blocks, f_fine = _problem(truth)
+    # Half the fine cells light no receiver: the room says nothing about them, and the
+    # smoothness alone pulls them to their neighbours.
+    unseen = np.arange(FINE.size) % 2 == 0
+    f_fine[:, unseen] = 0.0
+    irradiance = problem.indirect + problem.transfer[:, :1].toarray() * AREA + f_fine @ truth
+    problem = replace(problem, radiance=RHO[problem.cluster] / np.pi * irradiance)
+    coarse = solve_lighting(problem, SolveOptions())
+    held = replace(
+        coarse, intensities={"area": AREA.copy(), "window": coarse.intensities["window"]}
+    )
+    # The photos prove a few unseen cells brighter than their neighbours make them, and
+    # bound a few seen ones below their truth.
+    lower = np.zeros((FINE.size, 3))
+    proven = np.flatnonzero(unseen)[:12]
+    lower[proven] = 8.0
+    loose = np.flatnonzero(~unseen)[:12]
+    lower[loose] = 0.5 * truth[loose]
+    free = refit_window(problem, held, blocks, 1, f_fine, FINE, COARSE, 1.0, SolveOptions())
+    bounded = refit_window(
+        problem, held, blocks, 1, f_fine, FINE, COARSE, 1.0, SolveOptions(), lower=lower
+    )
+    assert free.bounded_cells == 0 and bounded.bounded_cells == 24
+    assert (free.cells[proven] < 8.0).all()
+    assert (bounded.cells >= lower - 1e-9).all()
+    np.testing.assert_allclose(bounded.cells[proven], 8.0, rtol=1e-6)
+    # what the room sees is fitted as before: the bounds that the truth meets cost nothing
+    seen = ~unseen & (np.abs(f_fine).sum(axis=0) > 0)
+    np.testing.assert_allclose(bounded.cells[seen], truth[seen], rtol=2e-2, atol=2e-2)
+    assert bounded.objective_fine < 1e-6 * bounded.objective_coarse

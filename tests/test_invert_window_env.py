@@ -361,6 +361,11 @@ def test_cell_lower_bounds_never_exceed_the_truth_and_count_clipped_pixels(windo
     notes: list[str] = []
     opts = InvertOptions(window_photo_bounds=True)
     assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is not None
+    # ... and for the render window's bounds, only when there is a render window.
+    opts = InvertOptions(render_window_photo_bounds=True)
+    assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is not None
+    opts = InvertOptions(render_window_photo_bounds=True, render_window_cells=0)
+    assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is None
 
 
 def test_pipeline_builds_the_window_prior_from_the_photos(window_scan, tmp_path):

@@ -564,6 +564,7 @@ def light_entries(
                         render_cells, render_basis, n_in, _window_area(g)
                     ).tolist(),
                     "used_by": "environment_exr, the textures and the per-vertex albedos",
+                    "photo_bounds": {"cells": int(getattr(fine, "bounded_cells", 0))},
                 }
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)

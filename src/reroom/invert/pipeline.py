@@ -73,12 +73,18 @@ class InvertOptions:
         that finer map for the renders: the window's ``window_<name>.exr``, the
         textures and the per-vertex albedos (:mod:`reroom.invert.render_window`).
         ``scene.json``'s cells, powers and cluster albedos stay the ``cubemap_n``
-        solve's. 0 (or ``cubemap_n``, the default for now): no refit. 8 on `furnished`
-        (60 frames, 256 spp, 1024-spp truths): the panel switched off renders at 9.2 /
-        10.2 % from the input / new cameras instead of 10.5 / 10.4 %, and no edit measured
-        got worse by more than 0.2 points (docs/benchmarks.md, "Session 35").
+        solve's. 0 (or ``cubemap_n``): no refit. The default, 8, on `furnished` (60
+        frames, 256 spp, 1024-spp truths): the panel switched off renders at 9.2 / 10.2 %
+        from the input / new cameras instead of 10.5 / 10.4 % with no refit, and no edit
+        measured got worse by more than 0.2 points (docs/benchmarks.md, "Session 35");
+        it costs about 3 s a window.
     render_window_smooth : float
         ``window_smooth`` of that refit.
+    render_window_photo_bounds : bool
+        Hold each fine cell of that refit at least as bright as the photos through the
+        window prove it is (:func:`reroom.invert.window_env.cell_lower_bounds`, as
+        ``window_photo_bounds`` does for the solve; joint solver only). The solve and
+        ``scene.json``'s figures are not touched.
     window_smooth : float
         Weight of the smoothness between neighbouring window cells, relative to
         ``solve.smooth_lambda`` (1: the thesis's weak smoothness, as every light).
@@ -332,8 +338,9 @@ class InvertOptions:
 
     cubemap_n: int = 4
     window_smooth: float = 1.0
-    render_window_cells: int = 0
+    render_window_cells: int = 8
     render_window_smooth: float = 1000.0
+    render_window_photo_bounds: bool = False
     bins: int = 32
     point_splits: int = 1
     line_phi_bins: int = 3
@@ -805,7 +812,10 @@ def _window_photos(
     (with a note) when the photos cannot be read back (e.g. no ``hdr/exposures.json``).
     """
     wanted = (
-        options.window_photo_prior > 0 or options.window_photo_bounds or options.window_photo_shapes
+        options.window_photo_prior > 0
+        or options.window_photo_bounds
+        or options.window_photo_shapes
+        or (options.render_window_photo_bounds and options.render_window_cells > 0)
     )
     if not openings or not wanted:
         return None
@@ -926,6 +936,10 @@ def run_invert(
     options = options or InvertOptions()
     if options.window_photo_bounds and options.solve.method == "alternating":
         raise ValueError("window_photo_bounds needs the joint solver: set solve.method to 'joint'")
+    if options.render_window_photo_bounds and options.solve.method == "alternating":
+        raise ValueError(
+            "render_window_photo_bounds needs the joint solver: set solve.method to 'joint'"
+        )
     if not np.isfinite(options.photo_color) or options.photo_color < 0:
         raise ValueError(f"photo_color must be >= 0, got {options.photo_color}")
     if options.photo_color > 0 and options.solve.method == "alternating":
@@ -1358,7 +1372,7 @@ def run_invert(
     # ------------------------------------------------------------------ render windows
     render_windows, render = _render_windows(
         caster, mesh, blocks, wins, openings, window_of, basis, transfer, rows, problem,
-        result, p_recv, n_recv, options, notes, timings,
+        result, p_recv, n_recv, options, notes, timings, photos,
     )  # fmt: skip
     r_transfer, r_blocks, r_result = render
 
@@ -1468,6 +1482,7 @@ def _render_windows(
     options: InvertOptions,
     notes: list[str],
     timings: dict[str, float],
+    photos: list | None = None,
 ):
     """Each window refitted on ``options.render_window_cells`` cells for the renders
     (:mod:`reroom.invert.render_window`); returns them by name, and the render model
@@ -1507,9 +1522,14 @@ def _render_windows(
             seed=options.seed + 101 + j,
             pane_faces=(window_of[faces] == j).any(axis=1),
         )
+        lower = None
+        if options.render_window_photo_bounds and photos is not None:
+            from reroom.invert.window_env import cell_lower_bounds
+
+            lower = cell_lower_bounds(photos[j], fine_basis)
         window = refit_window(
             problem, result, blocks, k, columns[rows], fine_basis, basis,
-            options.render_window_smooth, options.solve,
+            options.render_window_smooth, options.solve, lower=lower,
         )  # fmt: skip
         fine[block.name] = (window, columns)
         notes.append(

@@ -53,6 +53,8 @@ class RenderWindow:
         The refit problem's weighted squared residual (radiance units, the refit's
         albedos and final weights) with the coarse window (its cells spread over the
         fine ones) and with the fine cells.
+    bounded_cells : int
+        How many fine cells had a lower bound above 0 (``lower``).
     """
 
     name: str
@@ -62,6 +64,7 @@ class RenderWindow:
     albedo: np.ndarray
     objective_coarse: float
     objective_fine: float
+    bounded_cells: int = 0
 
 
 def block_columns(blocks: list[LightBlock], index: int) -> slice:
@@ -87,6 +90,7 @@ def refit_window(
     smooth: float,
     options: SolveOptions,
     progress=None,
+    lower: np.ndarray | None = None,
 ) -> RenderWindow:
     """Solve the window ``blocks[index]`` again on the finer basis ``fine``, alone.
 
@@ -109,6 +113,9 @@ def refit_window(
         solve's, as ``InvertOptions.window_smooth``).
     options : SolveOptions
         The solve's options (its Huber loss and eq. 5.8 reweighting).
+    lower : ndarray, shape (6 m^2, 3), optional
+        Lower bounds on the fine cells (what the photos' clipped and unclipped pixels
+        prove, :func:`reroom.invert.window_env.cell_lower_bounds`; joint solver only).
 
     Returns
     -------
@@ -137,6 +144,7 @@ def refit_window(
         False,
         pairs,
         adjacency_weights=np.full(len(pairs), float(smooth)),
+        lower=None if lower is None else np.asarray(lower, float),
     )
     refit = InverseProblem(
         radiance=problem.radiance,
@@ -159,6 +167,7 @@ def refit_window(
         albedo=np.asarray(solved.albedo, float),
         objective_coarse=at_coarse,
         objective_fine=at_fine,
+        bounded_cells=0 if lower is None else int(np.count_nonzero(np.max(lower, axis=1) > 0)),
     )
 
 
