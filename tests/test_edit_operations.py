@@ -378,6 +378,15 @@ def test_window_swap_scales_into_model_units() -> None:
     _, f_folded = swap_window_environment(folded, "sunset")
     np.testing.assert_allclose(f_sun, f_folded, rtol=1e-12)
     assert f_sun[0] > f3[0]
+    # A window refitted for the renders (reroom.invert.render_window) sets the level: its
+    # finer cells, here the same sky twice as bright, not the solve's.
+    fine = CubemapBasis(8)
+    rec8 = environment_cells("courtyard", fine) * [0.6, 0.5, 0.4]
+    rec8 *= ((fine.cell_directions() @ normal) < 0)[:, None]
+    refit = {**light, "render_distribution": {"basis": "cubemap", "n": 8, "cells": rec8.tolist()}}
+    cells8, f8 = swap_window_environment(refit, "sunset", was="courtyard")
+    assert cells8.shape == (fine.size, 3)
+    np.testing.assert_allclose(f8, 2 * factor, rtol=0.05)
 
 
 def test_window_swap_shows_the_new_sky_at_full_resolution(scan: Path, tmp_path: Path) -> None:

@@ -298,8 +298,9 @@ def swap_window_environment(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The cube-map cells of a new outdoor HDRI for a recovered window, in model units.
 
-    Each cell of the window's recovered distant light (``distribution.cells``, the
-    direction a ray *leaves* the room in) gets the new HDRI's mean radiance over its
+    Each cell of the window's recovered distant light (the direction a ray *leaves* the
+    room in; ``render_distribution.cells``, the window the renders show, where the
+    inversion refitted one, else ``distribution.cells``) gets the new HDRI's mean radiance over its
     directions (``samples`` directions on the sphere, the portal's lat-long convention,
     no rotation). The cells are weighted by how much the window sees through them,
     ``w_j = integral over the cell of max(0, -d . n_in)`` (the cosine at the opening:
@@ -316,7 +317,9 @@ def swap_window_environment(
     """
     from reroom.invert.basis import CubemapBasis
 
-    dist = light.get("distribution", {})
+    # The renders' window (reroom.invert.render_window) when there is one: the new sky
+    # then takes the level of the light the unedited renders show.
+    dist = light.get("render_distribution") or light.get("distribution", {})
     if dist.get("basis") != "cubemap":
         raise ReroomError(f"window {light.get('name')!r} has no cube-map distribution to swap")
     basis = CubemapBasis(int(dist.get("n", 4)))
