@@ -90,3 +90,16 @@ def test_cli_refuses_an_unknown_setting(tmp_path: Path) -> None:
     assert result.exit_code == 2
     assert "--set: unknown option 'rays'" in result.output
     assert "rays_per_receiver" in result.output
+
+
+def test_cli_runs_the_alternating_solver(tmp_path: Path) -> None:
+    # The joint solver's priors (the photos' colours, the render window's bounds) do
+    # not stop it: it goes on without them.
+    scan = _box_scan(tmp_path)
+    args = ["invert", str(scan), "--rays", "64", "--voxel", "0.25", "--no-pictures"]
+    args += ["--rerender", "0", "--no-textures", "--method", "alternating"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    report = json.loads((scan / "invert" / "report.json").read_text())
+    assert report["options"]["solve"]["method"] == "alternating"
+    assert report["options"]["photo_color"] == 0.0

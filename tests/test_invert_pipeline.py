@@ -461,11 +461,6 @@ def test_window_smoothness_reaches_the_solve_and_bad_values_are_refused(
     alternating = InvertOptions(window_photo_bounds=True, solve=SolveOptions(method="alternating"))
     with pytest.raises(ValueError, match="window_photo_bounds needs the joint solver"):
         run_invert(tmp_path / "nothing_here", None, alternating)
-    alternating = InvertOptions(
-        render_window_photo_bounds=True, solve=SolveOptions(method="alternating")
-    )
-    with pytest.raises(ValueError, match="render_window_photo_bounds needs the joint solver"):
-        run_invert(tmp_path / "nothing_here", None, alternating)
     assert not (tmp_path / "nothing_here").exists()
 
     seen = _spy_on_solve_blocks(monkeypatch)
@@ -650,7 +645,7 @@ def test_render_window_cells_give_the_renders_a_finer_window(tmp_path: Path) -> 
     render = entries["fine"]["render_distribution"]
     assert render["n"] == 8 and len(render["cells"]) == 6 * 64 and len(render["support"]) == 384
     assert render["objective"] <= render["objective_at_solved_cells"] * (1 + 1e-9)
-    assert render["photo_bounds"] == {"cells": 0}  # the option is off, and no photos here
+    assert render["photo_bounds"] == {"cells": 0}  # no photos in this scan to bound it
     # the renders' map is the fine one, the cells' picture the coarse one
     env = read_exr(tmp_path / "fine" / entries["fine"]["environment_exr"])[..., :3]
     cells = read_exr(tmp_path / "fine" / entries["fine"]["environment_cells_exr"])[..., :3]

@@ -462,9 +462,13 @@ def invert(
     from reroom.invert.pipeline import UNOBSERVED_FILLS, InvertOptions, run_invert
     from reroom.invert.solve import SolveOptions
 
+    # The photos' colour prior is the joint solver's: the alternating solver goes without
+    # it (an explicit --set photo_color=... with it is still refused, by run_invert).
+    photo_color = InvertOptions.photo_color if method != "alternating" else 0.0
     opts = InvertOptions(
         rays_per_receiver=rays,
         receiver_voxel=voxel,
+        photo_color=photo_color,
         solve=SolveOptions(method=method),  # type: ignore[arg-type]
         pictures=pictures,
         refine_points=refine_points,
