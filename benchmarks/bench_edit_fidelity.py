@@ -44,6 +44,9 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
   cores with the reference's floor only, about 4 min more per edit for its own floor;
   docs/benchmarks.md, "Edit fidelity", sessions 18-19).
 
+* where the edit changed the picture (:func:`edit_footprint`, against the reference row
+  when it was run): the share of the view, the RMSE there, and the edit's change in ours
+  over the truth's (an inserted chair's shadow, a switched-off light's light);
 * where the error is: per view, the share of the squared error within one pixel of a
   depth or normal edge of the scan mesh, the RMSE without those pixels, and the rest's
   shares by surface (wall, floor, ceiling, other; :func:`error_breakdown`), and the ratio
@@ -327,6 +330,50 @@ def error_breakdown(
         out[f"{name}_error_share_off_edges"] = float(se[on].sum() / total)
         t = float(tru[on].sum())
         out[f"{name}_ratio_of_means_off_edges"] = float(ours[on].sum() / t) if t > 0 else None
+    return out
+
+
+#: Where an edit changed the truth's picture: 4x4-averaged luminance changed by more than
+#: this fraction of the brighter of the two (the 1024-spp truths' own noise after the
+#: average is about 1-2 %).
+FOOTPRINT_CHANGE = 0.10
+
+
+def edit_footprint(
+    ours: np.ndarray, tru: np.ndarray, ours_ref: np.ndarray, tru_ref: np.ndarray
+) -> dict[str, float | None]:
+    """The error where an edit changed the picture, and the change itself, ours vs truth.
+
+    The footprint: pixels whose 4x4 block's truth luminance changed by more than
+    :data:`FOOTPRINT_CHANGE` of the brighter of the edited and unedited truth (an inserted
+    chair and its shadow; most of the view when a light goes off). Over it: the relative
+    RMSE of ours against the truth, and the edit's change in ours over the truth's
+    (``sum (ours - ours_ref) / sum (tru - tru_ref)`` of the luminance: 1 when ours
+    darkens or brightens by as much as the truth does). A view the edit does not change
+    has ``footprint_share`` 0 and None for the rest.
+    """
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    h, w = tru.shape[:2]
+    hb, wb = h // 4, w // 4
+    if hb == 0 or wb == 0:
+        return {"footprint_share": 0.0, "rel_rmse_footprint": None, "change_ratio": None}
+
+    def block(img: np.ndarray) -> np.ndarray:
+        y = img[: hb * 4, : wb * 4] @ lum
+        return y.reshape(hb, 4, wb, 4).mean(axis=(1, 3))
+
+    t_new, t_old = block(tru), block(tru_ref)
+    changed = np.abs(t_new - t_old) > FOOTPRINT_CHANGE * np.maximum(t_new, t_old)
+    mask = np.zeros((h, w), bool)
+    mask[: hb * 4, : wb * 4] = np.repeat(np.repeat(changed, 4, axis=0), 4, axis=1)
+    out: dict[str, float | None] = {"footprint_share": float(mask.mean())}
+    if not mask.any():
+        return {**out, "rel_rmse_footprint": None, "change_ratio": None}
+    d = ours[mask] - tru[mask]
+    out["rel_rmse_footprint"] = float(np.sqrt((d**2).sum() / max((tru[mask] ** 2).sum(), 1e-300)))
+    dt = float(((tru[mask] - tru_ref[mask]) @ lum).sum())
+    do = float(((ours[mask] - ours_ref[mask]) @ lum).sum())
+    out["change_ratio"] = do / dt if dt != 0 else None
     return out
 
 
@@ -631,6 +678,9 @@ def main() -> None:
                     np.sqrt(max(row["rel_rmse"] ** 2 - var, 0.0))
                 )
             seen[(edit, v["view"])] = (ours, tru)
+            if edit != "reference" and ("reference", v["view"]) in seen:
+                o_ref, t_ref = seen[("reference", v["view"])]
+                row.update(edit_footprint(ours, tru, o_ref, t_ref))
             if any(op.get("op") == "light" and op.get("off") for op in ops):
                 # The switched-off light's share of the view, truth against ours: where
                 # the relighting error comes from (its power, or the other lights').
@@ -703,6 +753,20 @@ def main() -> None:
             print(f"| {r['edit']} | {q['view']} | {_pc(q['window_pixel_share'])} "
                   f"| {_pc(q['window_error_share'])} | {_pc(q['emitter_error_share'])} "
                   f"| {_pc(q['rel_rmse_rest'])} | {ratios[0]} | {ratios[1]} |")  # fmt: skip
+    feet = [(r["edit"], q) for r in results for q in r["per_view"] if "footprint_share" in q]
+    if feet:
+        print("\nWhere the edit changed the truth's picture (4x4 blocks whose luminance moved by")
+        print(
+            f"more than {100 * FOOTPRINT_CHANGE:g} %): its share of the view, the RMSE there, and"
+        )
+        print("the edit's change in ours over the truth's:\n")
+        print(
+            "| edit | view | footprint | RMSE there | change ours / truth |\n|---|---|---|---|---|"
+        )
+        for edit, q in feet:
+            ratio = "-" if q.get("change_ratio") is None else f"{q['change_ratio']:.3f}"
+            print(f"| {edit} | {q['view']} | {_pc(q['footprint_share'])} "
+                  f"| {_pc(q.get('rel_rmse_footprint'))} | {ratio} |")  # fmt: skip
     shares = [(r["edit"], q) for r in results for q in r["per_view"] if "light_share_truth" in q]
     if shares:
         print("\nThe switched-off lights' share of each view's light (1 - off / unedited, Rec. 709")

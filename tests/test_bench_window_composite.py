@@ -98,3 +98,25 @@ def test_window_view_benchmark_turns_as_the_evaluation_and_names_what_is_missing
     (tmp_path / "invert" / "scene.json").write_text(json.dumps({"lights": []}))
     with pytest.raises(SystemExit, match="a synthetic scan's truth is needed"):
         module.main()
+
+
+def test_edit_footprint_is_where_the_truth_changed_and_measures_ours_there():
+    import numpy as np
+
+    bench = _bench()
+    rng = np.random.default_rng(1)
+    ref = 0.5 + 0.01 * rng.random((32, 48, 3))
+    tru = ref.copy()
+    tru[8:16, 12:24] *= 0.4  # a shadow: 8 x 12 pixels, 60 % darker
+    # ours darkens the same pixels by half as much, and is 2 % off elsewhere
+    ours_ref = ref * 1.02
+    ours = ours_ref.copy()
+    ours[8:16, 12:24] *= 0.7
+    f = bench.edit_footprint(ours, tru, ours_ref, ref)
+    assert f["footprint_share"] == (8 * 12) / (32 * 48)
+    assert np.isclose(f["change_ratio"], (0.3 * 1.02) / 0.6, rtol=1e-6)
+    want = np.linalg.norm(ours[8:16, 12:24] - tru[8:16, 12:24]) / np.linalg.norm(tru[8:16, 12:24])
+    assert np.isclose(f["rel_rmse_footprint"], want)
+    # an edit that changes nothing in the view: no footprint
+    none = bench.edit_footprint(ours_ref, ref, ours_ref, ref)
+    assert none == {"footprint_share": 0.0, "rel_rmse_footprint": None, "change_ratio": None}
