@@ -378,15 +378,27 @@ def test_window_swap_scales_into_model_units() -> None:
     _, f_folded = swap_window_environment(folded, "sunset")
     np.testing.assert_allclose(f_sun, f_folded, rtol=1e-12)
     assert f_sun[0] > f3[0]
-    # A window refitted for the renders (reroom.invert.render_window) sets the level: its
-    # finer cells, here the same sky twice as bright, not the solve's.
-    fine = CubemapBasis(8)
-    rec8 = environment_cells("courtyard", fine) * [0.6, 0.5, 0.4]
-    rec8 *= ((fine.cell_directions() @ normal) < 0)[:, None]
-    refit = {**light, "render_distribution": {"basis": "cubemap", "n": 8, "cells": rec8.tolist()}}
-    cells8, f8 = swap_window_environment(refit, "sunset", was="courtyard")
-    assert cells8.shape == (fine.size, 3)
-    np.testing.assert_allclose(f8, 2 * factor, rtol=0.05)
+    # The level is the ratio of the light entering (the window's power), so one bright
+    # cell solved at half its value moves it by that cell's share of the flux only; and
+    # the solve's cells set it, not a render window's finer ones.
+    leaving = -normal  # the way a ray leaves the room through the window
+    d = basis.cell_directions()
+    j = int(np.argmax(rec @ [0.2126, 0.7152, 0.0722]))
+    off = rec.copy()
+    off[j] *= 0.5
+    _, f_off = swap_window_environment(
+        {**light, "distribution": {**light["distribution"], "cells": off.tolist()}},
+        "sunset",
+        was="courtyard",
+    )
+    assert np.all(f_off < factor) and np.all(f_off > 0.8 * factor)
+    refit = {
+        **light,
+        "render_distribution": {"basis": "cubemap", "n": 8, "cells": [[9.0] * 3] * 384},
+    }
+    _, f_refit = swap_window_environment(refit, "sunset", was="courtyard")
+    np.testing.assert_allclose(f_refit, factor, rtol=1e-12)
+    assert leaving @ d[j] > 0  # the bright cell is one the window shows
 
 
 def test_window_swap_shows_the_new_sky_at_full_resolution(scan: Path, tmp_path: Path) -> None:

@@ -298,17 +298,18 @@ def swap_window_environment(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The cube-map cells of a new outdoor HDRI for a recovered window, in model units.
 
-    Each cell of the window's recovered distant light (the direction a ray *leaves* the
-    room in; ``render_distribution.cells``, the window the renders show, where the
-    inversion refitted one, else ``distribution.cells``) gets the new HDRI's mean radiance over its
+    Each cell of the window's recovered distant light (``distribution.cells``, the
+    direction a ray *leaves* the room in) gets the new HDRI's mean radiance over its
     directions (``samples`` directions on the sphere, the portal's lat-long convention,
     no rotation). The cells are weighted by how much the window sees through them,
     ``w_j = integral over the cell of max(0, -d . n_in)`` (the cosine at the opening:
     the light that enters). Units: with ``was`` (the HDRI the scan was lit by), per
-    channel the least-squares factor ``s = sum w was rec / sum w was^2`` that maps
+    channel the ratio of the light entering, ``s = sum w rec / sum w was``, which maps
     ``was`` onto the recovered cells ``rec``; without it, one factor for all channels so
     that the weighted mean luminance equals the recovered one's (the new sky keeps its
-    colour). Times ``scale``.
+    colour). Times ``scale``. The level is the solve's (its window power, which the
+    evaluation checks), not the finer map a render window shows: the single cells of
+    either are far less sure than their sum (docs/edit.md).
 
     Returns
     -------
@@ -317,9 +318,7 @@ def swap_window_environment(
     """
     from reroom.invert.basis import CubemapBasis
 
-    # The renders' window (reroom.invert.render_window) when there is one: the new sky
-    # then takes the level of the light the unedited renders show.
-    dist = light.get("render_distribution") or light.get("distribution", {})
+    dist = light.get("distribution", {})
     if dist.get("basis") != "cubemap":
         raise ReroomError(f"window {light.get('name')!r} has no cube-map distribution to swap")
     basis = CubemapBasis(int(dist.get("n", 4)))
@@ -341,9 +340,13 @@ def swap_window_environment(
     if w.sum() <= 0:
         w = count  # a degenerate normal: use every direction
     if was is not None:
+        # The ratio of the light entering, not a least-squares fit of the cells: that
+        # weighs each cell by was^2, so the brightest few cells (the least sure: on
+        # `furnished` they are solved at 0.7-1.3 of the truth) set the level, and it
+        # came out 8-15 % high; the ratio of sums is the window's power, within 3 %.
         old = environment_cells(was, basis, samples)
-        num = (w[:, None] * old * rec).sum(0)
-        den = (w[:, None] * old * old).sum(0)
+        num = (w[:, None] * rec).sum(0)
+        den = (w[:, None] * old).sum(0)
         factor = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
     else:
         lum = np.array([0.2126, 0.7152, 0.0722])
