@@ -347,9 +347,11 @@ def edit_footprint(
     The footprint: pixels whose 4x4 block's truth luminance changed by more than
     :data:`FOOTPRINT_CHANGE` of the brighter of the edited and unedited truth (an inserted
     chair and its shadow; most of the view when a light goes off). Over it: the relative
-    RMSE of ours against the truth, and the edit's change in ours over the truth's
-    (``sum (ours - ours_ref) / sum (tru - tru_ref)`` of the luminance: 1 when ours
-    darkens or brightens by as much as the truth does). A view the edit does not change
+    RMSE of ours against the truth, and the edit's change in ours over the truth's: the
+    least-squares slope ``sum(d_ours d_tru) / sum(d_tru^2)`` of the luminance changes
+    ``d = edited - unedited`` (1 when ours darkens and brightens where and by as much as
+    the truth does; a light moved both darkens and brightens, so a plain ratio of sums
+    would divide by nearly 0). A view the edit does not change
     has ``footprint_share`` 0 and None for the rest.
     """
     lum = np.array([0.2126, 0.7152, 0.0722])
@@ -371,9 +373,10 @@ def edit_footprint(
         return {**out, "rel_rmse_footprint": None, "change_ratio": None}
     d = ours[mask] - tru[mask]
     out["rel_rmse_footprint"] = float(np.sqrt((d**2).sum() / max((tru[mask] ** 2).sum(), 1e-300)))
-    dt = float(((tru[mask] - tru_ref[mask]) @ lum).sum())
-    do = float(((ours[mask] - ours_ref[mask]) @ lum).sum())
-    out["change_ratio"] = do / dt if dt != 0 else None
+    dt = (tru[mask] - tru_ref[mask]) @ lum
+    do = (ours[mask] - ours_ref[mask]) @ lum
+    den = float(dt @ dt)
+    out["change_ratio"] = float(do @ dt) / den if den > 0 else None
     return out
 
 
