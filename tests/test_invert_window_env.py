@@ -361,9 +361,9 @@ def test_cell_lower_bounds_never_exceed_the_truth_and_count_clipped_pixels(windo
     notes: list[str] = []
     opts = InvertOptions(window_photo_bounds=True)
     assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is not None
-    # ... and for the render window's bounds, only when there is a render window.
-    opts = InvertOptions(render_window_photo_bounds=True)
-    assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is not None
+    # ... and for the render window's bounds (the default), only when there is a render
+    # window.
+    assert _window_photos(root, _room(), None, [WINDOW], InvertOptions(), notes) is not None
     opts = InvertOptions(render_window_photo_bounds=True, render_window_cells=0)
     assert _window_photos(root, _room(), None, [WINDOW], opts, notes) is None
 
@@ -374,7 +374,10 @@ def test_pipeline_builds_the_window_prior_from_the_photos(window_scan, tmp_path)
     root, env = window_scan
     basis = CubemapBasis(4)
     notes: list[str] = []
-    assert _window_photos(root, _room(), None, [WINDOW], InvertOptions(), notes) is None
+    # No option that uses them before the solve: not read (the default reads them for
+    # the render window's bounds, see test_cell_lower_bounds_never_exceed_the_truth...).
+    bare = InvertOptions(render_window_photo_bounds=False)
+    assert _window_photos(root, _room(), None, [WINDOW], bare, notes) is None
     off = _window_photo_priors(None, [WINDOW], basis, InvertOptions())
     assert off == [(None, None, {})]
     opts = InvertOptions(window_photo_prior=1e5)
