@@ -72,6 +72,13 @@ def test_first_run_makes_every_stage_and_leaves_the_scan_alone(first_run) -> Non
     assert "floor" in {t["label"] for t in textures}
     assert all((out / "invert" / t["file"]).is_file() for t in textures)
     assert "Albedo textures of the room" in html
+    # The renders' window: refitted at 8x8 cells with the photos' bounds (the defaults).
+    doc = json.loads((out / "invert" / "scene.json").read_text())
+    windows = [x for x in doc["lights"] if x["type"] == "window"]
+    assert windows
+    for w in windows:
+        assert w["render_distribution"]["n"] == 8 and len(w["render_distribution"]["cells"]) == 384
+        assert w["render_distribution"]["photo_bounds"]["cells"] >= 0
     # Ground truth: each stage's evaluation made it into the report.
     ev = json.loads((out / "report" / "evaluation.json").read_text())
     assert set(ev) == {"hdr", "layout", "lights", "invert"}
