@@ -187,8 +187,11 @@ def test_a_window_view_is_an_input_of_the_inverse_rendering(first_run, tmp_path:
     assert [st[s] for s in STAGES[:3]] == ["skipped"] * 3
     assert [st[s] for s in STAGES[3:]] == ["ran"] * 4
     assert read_record(run / "invert")["options"]["window_view_hdri"] == "view.exr"
-    # (This 12-frame 80x60 scan finds no window; what the view does to a window's cells
-    # and map is tested in test_invert_window_env.py.)
+    # The window is refitted for the renders with the view too, and its map is the view's
+    # (what the view does to a window's cells and map: test_invert_window_env.py).
+    doc = json.loads((run / "invert" / "scene.json").read_text())
+    for w in [x for x in doc["lights"] if x["type"] == "window"]:
+        assert w["render_distribution"]["n"] == 8 and w["environment_source"] == "view+cells"
     # The same view again: nothing to do; other content in that file: the invert stage.
     assert set(_status(run_scan(scan, opts(view))).values()) == {"skipped"}
     write_exr(view, sky[::-1].copy())

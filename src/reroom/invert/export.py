@@ -561,7 +561,18 @@ def light_entries(
                     "objective": fine.objective_fine,
                     "cluster_albedo_of_refit": np.nan_to_num(fine.albedo, nan=-1.0).tolist(),
                     "power": window_power(
-                        render_cells, render_basis, n_in, _window_area(g)
+                        render_cells,
+                        render_basis,
+                        n_in,
+                        _window_area(g),
+                        direction_weight=None
+                        if weight is None
+                        else WindowView.load(
+                            info["view"]["hdri"],
+                            render_basis,
+                            n_in,
+                            float(info["view"].get("rotation_deg", 0.0)),
+                        ).weight(render_basis),
                     ).tolist(),
                     "used_by": "environment_exr, the textures and the per-vertex albedos",
                     "photo_bounds": {"cells": int(getattr(fine, "bounded_cells", 0))},
@@ -681,17 +692,16 @@ def window_photo_maps(
             wins.append((block.name, opening, cells, CubemapBasis(fine.n)))
     if not wins:
         return {}, []
-    basis = CubemapBasis(result.cubemap_n)
     if view is not None:
         # A captured view of the window spreads each solved cell (its pattern, not the
         # photos', which clip the view): the transfer was weighted by the same pattern.
         from reroom.invert.window_env import WindowView
 
         out = {}
-        for name, opening, cells, _ in wins:
-            wv = WindowView.load(view[0], basis, opening.normal, view[1])
+        for name, opening, cells, b in wins:  # b: the solve's basis, or a render window's
+            wv = WindowView.load(view[0], b, opening.normal, view[1])
             out[name] = (
-                wv.environment(cells, basis, height),
+                wv.environment(cells, b, height),
                 {"view_hdri": str(view[0]), "rotation_deg": view[1], "height": height},
             )
         return out, []

@@ -1498,8 +1498,8 @@ def _render_windows(
         why = "the windows are not solved on a cube map"
     elif options.window_samples <= 0:
         why = "window_samples is 0 (the windows' transfer comes from the hemisphere rays)"
-    elif options.window_view_hdri is not None or options.window_photo_shapes:
-        why = "the windows' transfer is weighted by a view pattern"
+    elif options.window_photo_shapes:
+        why = "the windows' transfer is weighted by the photos' pattern"
     if why is not None:
         notes.append(f"render windows: not refitted at {n}x{n} cells ({why})")
         return idle
@@ -1512,6 +1512,11 @@ def _render_windows(
         if block.kind != "window":
             continue
         j = index[block.name]
+        # A captured view of the window spreads each fine cell's light as the view does,
+        # as it spreads the solve's cells.
+        weight = None
+        if options.window_view_hdri is not None:
+            weight = _window_view(options, fine_basis, openings[j]).weight(fine_basis)
         columns = window_portal_transfer(
             caster,
             openings[j],
@@ -1521,6 +1526,7 @@ def _render_windows(
             options.window_samples,
             seed=options.seed + 101 + j,
             pane_faces=(window_of[faces] == j).any(axis=1),
+            direction_weight=weight,
         )
         lower = None
         if options.render_window_photo_bounds and photos is not None:
