@@ -520,13 +520,7 @@ def light_entries(
                 e["distribution"]["photo_shapes"] = info["photo_shapes"]
             if "view" in info:  # InvertOptions.window_view_hdri
                 e["distribution"]["view"] = info["view"]
-            weight = None
-            if "view" in info:  # the cells are spread by the captured view (window_view_hdri)
-                from reroom.invert.window_env import WindowView
-
-                weight = WindowView.load(
-                    info["view"]["hdri"], basis, n_in, float(info["view"].get("rotation_deg", 0.0))
-                ).weight(basis)
+            weight = _view_weight(info, basis, n_in)
             power = window_power(cells, basis, n_in, _window_area(g), direction_weight=weight)
             sun = suns.get(block.name)
             if sun is not None:
@@ -565,17 +559,10 @@ def light_entries(
                         render_basis,
                         n_in,
                         _window_area(g),
-                        direction_weight=None
-                        if weight is None
-                        else WindowView.load(
-                            info["view"]["hdri"],
-                            render_basis,
-                            n_in,
-                            float(info["view"].get("rotation_deg", 0.0)),
-                        ).weight(render_basis),
+                        direction_weight=_view_weight(info, render_basis, n_in),
                     ).tolist(),
                     "used_by": "environment_exr, the textures and the per-vertex albedos",
-                    "photo_bounds": {"cells": int(getattr(fine, "bounded_cells", 0))},
+                    "photo_bounds": {"cells": fine.bounded_cells},
                 }
             if out is not None:
                 ll = latlong_from_cubemap(cells, basis)
@@ -652,6 +639,19 @@ def light_entries(
         e["explains_nothing"] = bool(share < 1e-3)
         entries.append(e)
     return entries
+
+
+def _view_weight(info: dict[str, Any], basis: CubemapBasis, n_in: np.ndarray):
+    """The captured view's pattern within each cell of ``basis`` (the direction weight its
+    transfer was computed with), or None for a window solved without a view."""
+    if "view" not in info:  # InvertOptions.window_view_hdri
+        return None
+    from reroom.invert.window_env import WindowView
+
+    view = info["view"]
+    return WindowView.load(view["hdri"], basis, n_in, float(view.get("rotation_deg", 0.0))).weight(
+        basis
+    )
 
 
 def window_photo_maps(

@@ -811,15 +811,20 @@ def _window_photos(
 ) -> list | None:
     """The photos' view through each window, when an option uses it before the solve.
 
-    None when none of ``window_photo_prior``, ``window_photo_bounds`` and
-    ``window_photo_shapes`` asks for it, or
+    None when none of ``window_photo_prior``, ``window_photo_bounds``,
+    ``window_photo_shapes`` and ``render_window_photo_bounds`` (with a render window and
+    the joint solver) asks for it, or
     (with a note) when the photos cannot be read back (e.g. no ``hdr/exposures.json``).
     """
     wanted = (
         options.window_photo_prior > 0
         or options.window_photo_bounds
         or options.window_photo_shapes
-        or (options.render_window_photo_bounds and options.render_window_cells > 0)
+        or (
+            options.render_window_photo_bounds
+            and options.render_window_cells > 0
+            and options.solve.method == "joint"
+        )
     )
     if not openings or not wanted:
         return None
@@ -1529,16 +1534,16 @@ def _render_windows(
             direction_weight=weight,
         )
         lower = None
-        if options.render_window_photo_bounds and photos is not None:
+        if options.render_window_photo_bounds and options.solve.method != "joint":
+            # Bounds are the joint solver's (the photos were not read for them).
+            notes.append(
+                f"render window {block.name}: the photos' bounds not used (they need the "
+                "joint solver)"
+            )
+        elif options.render_window_photo_bounds and photos is not None:
             from reroom.invert.window_env import cell_lower_bounds
 
-            if options.solve.method == "joint":
-                lower = cell_lower_bounds(photos[j], fine_basis)
-            else:  # bounds are the joint solver's; the refit goes on without them
-                notes.append(
-                    f"render window {block.name}: the photos' bounds not used (they need "
-                    "the joint solver)"
-                )
+            lower = cell_lower_bounds(photos[j], fine_basis)
         window = refit_window(
             problem, result, blocks, k, columns[rows], fine_basis, basis,
             options.render_window_smooth, options.solve, lower=lower,
