@@ -120,3 +120,22 @@ def test_edit_footprint_is_where_the_truth_changed_and_measures_ours_there():
     # an edit that changes nothing in the view: no footprint
     none = bench.edit_footprint(ours_ref, ref, ours_ref, ref)
     assert none == {"footprint_share": 0.0, "rel_rmse_footprint": None, "change_ratio": None}
+
+
+def test_window_swap_benchmark_names_what_is_missing(tmp_path, monkeypatch):
+    import sys
+
+    spec = importlib.util.spec_from_file_location(
+        "bench_window_swap", BENCH.parent / "bench_window_swap.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(sys, "argv", ["bench_window_swap.py", str(tmp_path)])
+    with pytest.raises(SystemExit, match="scene.json is missing"):
+        module.main()
+    (tmp_path / "invert").mkdir()
+    (tmp_path / "invert" / "scene.json").write_text(
+        json.dumps({"lights": [{"name": "window0", "type": "area"}]})
+    )
+    with pytest.raises(SystemExit, match="no window named 'window0'"):
+        module.main()
