@@ -125,6 +125,20 @@ def test_tube_glows_with_its_lambertian_radiance(tmp_path: Path) -> None:
     )
 
 
+def test_tube_seen_end_on_glows_uniformly_caps_included(tmp_path: Path) -> None:
+    # 73 degrees off the tube's perpendicular its end cap is a sixth of what the camera
+    # sees of it; the line model's J cos(phi) is the side's light only, so the cap must
+    # not dilute it (0.83 of the radiance if it did): side and cap show J / (2 R). Far
+    # enough (2 m from the axis) for the near field to move the radiance by ~1 %.
+    eye = np.array([-6.5, 0.05, Z - 2.0])
+    intr = Intrinsics.from_fov(W, H, 8.0)
+    scene = _scene(tmp_path)
+    img = FrameRenderer(scene, intr, spp=4).render(look_at(eye, (P0 + P1) / 2), seed=1)[..., 0]
+    full = img > 0.8 * img.max()
+    assert full.sum() > 40
+    np.testing.assert_allclose(np.median(img[full]), J / (2 * R), rtol=0.03)
+
+
 def test_baffle_near_the_tube_and_a_far_occluder(tmp_path: Path) -> None:
     c2w = look_at(EYE, [0.0, 0.0, Z])
     base = _render(_scene(tmp_path / "a"), c2w)[..., 0]

@@ -16,6 +16,9 @@ radiance ``L`` and radius ``r`` has ``J = 2 r L`` per unit length, and its visib
 lowers ``I`` (in the solved distribution) and ``A_vis`` alike. For a line light the rule
 is applied per unit length (``L = J(theta, phi) / w_vis``, ``w_vis`` the visible projected
 width, each element's ``cos(phi)`` divided out), as its camera is rarely in the far field.
+``w_vis`` is measured on the faces along the line (its side): faces that face along it (a
+tube's end caps, when the photos saw them glow) show the same radiance, and add their
+light, which the line model cannot hold (it grows as ``sin(phi)`` at the ends).
 
 ``A_vis`` is measured by shadow rays: points spread over the glowing faces by area, each
 counted with its ``cos`` towards the camera unless something within ``reach`` (the
@@ -37,6 +40,7 @@ this and composites them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,6 +66,10 @@ GLOW = "reroom_glow"
 #: Shadow rays from the glowing faces towards the camera count as hidden when something
 #: blocks them within this distance (metres): the fitting around the light.
 DEFAULT_REACH = 0.5
+
+#: A line light's glowing face is part of its side (not an end cap) when its normal is
+#: within 45 degrees of the plane perpendicular to the line: ``|n . t| <`` this.
+SIDE_COS = math.cos(math.radians(45.0))
 
 
 def glow_entry(filename: str, light: str, origin: np.ndarray) -> dict[str, Any]:
@@ -246,6 +254,15 @@ def visible_projected_area(
         axis = p0 + np.clip((p - p0) @ t, 0.0, length)[:, None] * t
         centre_dist = np.linalg.norm(eye[None, :] - axis, axis=1)
         weight = weight / np.maximum(cos_phi, 0.05) * (centre_dist / np.maximum(dist, 1e-9)) ** 2
+        # Only the side sets the radiance: the line model's J cos(phi) per metre is the
+        # light of the tube's length, while an end cap's light grows as sin(phi), at the
+        # ends (6 % of a 1.2 m, 16 mm tube's light 70 degrees off its perpendicular).
+        # Counting the caps' area here would spread the side's light over them; instead
+        # they glow with the side's radiance (glow_layer gives every face of a source the
+        # same value), as a uniformly glowing tube does.
+        side = np.abs(n @ t) < SIDE_COS
+        if side.any():
+            weight = np.where(side, weight, 0.0)
         return float(total * weight.mean() / length)
     centre_dist = float(np.linalg.norm(eye - _light_centre(source.entry)))
     return float(total * (weight * (centre_dist / np.maximum(dist, 1e-9)) ** 2).mean())
