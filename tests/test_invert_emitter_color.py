@@ -126,3 +126,32 @@ def test_a_light_below_saturation_or_unreadable_gives_no_colour() -> None:
     )
     # a facing test that no camera passes: nothing seen
     assert _colour((frames, images, scales, mesh), facing=lambda c: False) is None
+
+
+def test_a_frame_whose_edge_disagrees_is_dropped(photos) -> None:
+    # Two frames read with a tinted exposure (their background is then not what lies
+    # behind their edge, as a wrong one is): without the vote their colour would pull
+    # the sum's red up and its blue down.
+    frames, images, scales, mesh = photos
+    tint = {0: np.array([0.75, 1.0, 1.3]), 4: np.array([0.75, 1.0, 1.3])}
+    caster = caster_without_fixture(mesh.vertices, mesh.faces, P0, P1)
+    found = emitter_color(
+        frames, lambda f: images[f.index], lambda i: scales[i] * tint.get(i, 1.0), LUT, caster,
+        segment_points(P0, P1), facing=lambda c: c[2] < AXIS_Z,
+    )  # fmt: skip
+    assert found is not None and found.dropped == 2
+    np.testing.assert_allclose(found.color, TUBE / TUBE.mean(), rtol=0.015)
+    assert found.summary()["frames_dropped"] == 2
+
+
+def test_consistent_frames_votes_by_pixels() -> None:
+    from reroom.invert.emitter_color import consistent_frames
+
+    good = np.array([[1.0, 1.0, 1.0], [2.0, 2.02, 1.98], [0.5, 0.5, 0.51]])
+    bad = np.array([[0.8, 1.0, 1.2], [1.0, 1.0, 0.0]])  # off colour; a channel at 0
+    keep = consistent_frames(np.vstack([good, bad]), np.array([10, 10, 10, 10, 10]))
+    assert keep.tolist() == [True, True, True, False, False]
+    # the median is by pixels: one big off-colour frame outvotes two small ones
+    keep = consistent_frames(np.array([[1.0, 1.0, 1.0], [0.8, 1.0, 1.2]]), np.array([1, 50]))
+    assert keep.tolist() == [False, True]
+    assert consistent_frames(np.zeros((2, 3)), np.array([3, 3])).tolist() == [False, False]
