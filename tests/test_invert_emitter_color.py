@@ -155,3 +155,18 @@ def test_consistent_frames_votes_by_pixels() -> None:
     keep = consistent_frames(np.array([[1.0, 1.0, 1.0], [0.8, 1.0, 1.2]]), np.array([1, 50]))
     assert keep.tolist() == [False, True]
     assert consistent_frames(np.zeros((2, 3)), np.array([3, 3])).tolist() == [False, False]
+
+
+def test_no_frame_is_dropped_without_a_majority(photos) -> None:
+    # Half the frames tinted one way: no colour most frames agree on, so none is dropped
+    # and the spread over them all shows the disagreement.
+    frames, images, scales, mesh = photos
+    tinted = {f.index for f in frames[::2]}
+    caster = caster_without_fixture(mesh.vertices, mesh.faces, P0, P1)
+    found = emitter_color(
+        frames, lambda f: images[f.index],
+        lambda i: scales[i] * (np.array([0.75, 1.0, 1.3]) if i in tinted else 1.0), LUT,
+        caster, segment_points(P0, P1), facing=lambda c: c[2] < AXIS_Z,
+    )  # fmt: skip
+    assert found is not None and found.dropped == 0
+    assert found.spread.max() > 0.02

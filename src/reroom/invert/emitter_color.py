@@ -25,6 +25,9 @@ frames' median colour in any channel is dropped (its background is not what lies
 behind its edge: on a second trajectory of `furnished`, two of ten frames of the tube
 read 0.75-0.80 / 1.01-1.02 / 1.19-1.23 against the others' 0.93-0.96 / 1.00 / 1.04-1.07,
 and took the sum's red 5 % low and its blue 4.5 % high, the bootstrap's spread to 3.4 %).
+When the frames that disagree hold more than a third of the edge pixels there is no
+colour most frames agree on: none is dropped, and the bootstrap's spread over them all
+says how far the colour can be trusted (the pipeline's gate).
 """
 
 from __future__ import annotations
@@ -47,6 +50,10 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 #: A frame's edge colour further than this (relative, in any channel) from the
 #: pixel-weighted median of the frames' colours is an outlier, and dropped.
 MAX_FRAME_DEVIATION = 0.08
+
+#: When the frames that disagree hold more than this share of the edge pixels, there is
+#: no colour most frames agree on: none is dropped, and the spread over them all tells.
+MAX_DROPPED_SHARE = 1.0 / 3.0
 
 
 @dataclass(frozen=True)
@@ -228,6 +235,9 @@ def emitter_color(
             counts.append(count)
     per_frame, pixels = np.asarray(sums).reshape(-1, 3), np.asarray(counts, int)
     keep = consistent_frames(per_frame, pixels)
+    if pixels[~keep].sum() > MAX_DROPPED_SHARE * pixels.sum():
+        # No colour most frames agree on: keep them all, and let the spread tell.
+        keep = np.all(per_frame > 0, axis=1)
     dropped = int(len(keep) - np.count_nonzero(keep))
     per_frame, pixels = per_frame[keep], pixels[keep]
     if len(per_frame) < min_frames or pixels.sum() < min_pixels:
