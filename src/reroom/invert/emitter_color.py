@@ -237,7 +237,7 @@ def emitter_color(
     keep = consistent_frames(per_frame, pixels)
     if pixels[~keep].sum() > MAX_DROPPED_SHARE * pixels.sum():
         # No colour most frames agree on: keep them all, and let the spread tell.
-        keep = np.all(per_frame > 0, axis=1)
+        keep = np.ones(len(per_frame), bool)
     dropped = int(len(keep) - np.count_nonzero(keep))
     per_frame, pixels = per_frame[keep], pixels[keep]
     if len(per_frame) < min_frames or pixels.sum() < min_pixels:
