@@ -269,14 +269,12 @@ def consistent_frames(
     """
     per_frame = np.asarray(per_frame, float).reshape(-1, 3)
     w = np.asarray(pixels, float).reshape(-1)
-    mean = per_frame.mean(axis=1, keepdims=True)
-    valid = (mean[:, 0] > 0) & np.all(per_frame > 0, axis=1)
+    valid = np.all(per_frame > 0, axis=1)
     if not valid.any():
         return valid
-    color = np.where(valid[:, None], per_frame / np.where(mean > 0, mean, 1.0), np.nan)
+    color = per_frame / np.maximum(per_frame.mean(axis=1, keepdims=True), 1e-300)
     median = np.array([_weighted_median(color[valid, c], w[valid]) for c in range(3)])
-    deviation = np.max(np.abs(color / median - 1.0), axis=1)
-    return valid & (np.nan_to_num(deviation, nan=np.inf) <= tolerance)
+    return valid & (np.max(np.abs(color / median - 1.0), axis=1) <= tolerance)
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
