@@ -22,6 +22,9 @@ prints, next to the truth (read here, never by the pipeline):
   spread, the edge pixels and frames used, whether the pipeline would use the colour
   (its spread gate, ``MAX_PHOTO_COLOR_SPREAD``), and the seconds it took.
 
+``--per-frame`` also prints each frame's edge colour (HDR units over ``k``, mean 1) and
+whether the frames' vote (:func:`reroom.invert.emitter_color.consistent_frames`) keeps it.
+
 ``--excess-over-background X`` and ``--edge-px P`` measure with other settings of
 :func:`reroom.invert.emitter_color.emitter_color` than its defaults (1 and 1.5).
 """
@@ -89,7 +92,7 @@ def _pct(a: np.ndarray) -> str:
     return "/".join(f"{100 * v:+.1f}" for v in a) + " %"
 
 
-def bench_scan(scan_dir: Path, measure: dict | None = None) -> None:
+def bench_scan(scan_dir: Path, measure: dict | None = None, per_frame: bool = False) -> None:
     gt = json.loads((scan_dir / "ground_truth" / "ground_truth.json").read_text())
     o = gt.get("options", {})
     scan = load_scan(scan_dir, check_images=False)
@@ -102,9 +105,10 @@ def bench_scan(scan_dir: Path, measure: dict | None = None) -> None:
           f"{np.round(k / k.mean(), 4).tolist()})\n")  # fmt: skip
     print(
         "| light | truth | photos (HDR, to the truth's units) | error | with true exposures "
-        "| error | spread | edge pixels / frames | used by the solve | s |"
+        "| error | spread | edge pixels / frames (dropped) | used by the solve | s |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
+    frame_rows: list[str] = []
     for name, kind, g in _geometries(scan_dir):
         truth = _nearest_truth(kind, g, gt["lights"])
         if truth is None:
@@ -112,10 +116,15 @@ def bench_scan(scan_dir: Path, measure: dict | None = None) -> None:
         rad = np.asarray(truth["radiance"], float)
         true = rad / rad.mean()
         rows = []
+        edges: list[tuple[np.ndarray, int]] = []  # each frame's summed excess, HDR units
         t0 = time.perf_counter()
         for scales in (None, true_scale):
             notes: list[str] = []
             with contextlib.ExitStack() as stack:
+                if per_frame and scales is None:
+                    stack.enter_context(
+                        mock.patch.object(emitter_module, "_frame_edge", _recording(edges))
+                    )
                 # every measurement, also one the pipeline's spread gate would not use
                 stack.enter_context(
                     mock.patch.object(pipeline, "_checked_photo_color", lambda _n, f, _notes: f)
@@ -152,9 +161,38 @@ def bench_scan(scan_dir: Path, measure: dict | None = None) -> None:
             f"{_pct(c_hdr / true - 1)} | "
             f"{'-' if c_tr is None else np.round(c_tr, 3).tolist()} | "
             f"{'-' if c_tr is None else _pct(c_tr / true - 1)} | "
-            f"{np.round(hdr.spread, 3).tolist()} | {hdr.pixels} / {hdr.frames} | "
+            f"{np.round(hdr.spread, 3).tolist()} | {hdr.pixels} / {hdr.frames} ({hdr.dropped}) | "
             f"{'yes' if used else 'no (spread)'} | {seconds:.1f} |"
         )
+        if per_frame and edges:
+            sums = np.array([e for e, _ in edges])
+            pixels = np.array([n for _, n in edges])
+            keep = emitter_module.consistent_frames(sums, pixels)
+            for (e, n), kept in zip(edges, keep, strict=True):
+                c = e / k
+                c = c / c.mean() if c.mean() > 0 else c
+                frame_rows.append(
+                    f"| {name} | {n} | {np.round(c, 3).tolist()} | {'yes' if kept else 'no'} |"
+                )
+    if frame_rows:
+        print("\nEach frame's edge colour (the truth's units, mean 1), and whether the frames'")
+        print("vote keeps it (before the two-thirds rule):\n")
+        print("| light | edge pixels | colour | kept |")
+        print("|---|---|---|---|")
+        print("\n".join(frame_rows))
+
+
+def _recording(edges: list):
+    """``emitter_color``'s per-frame edge sum, recording what each frame gave."""
+    original = emitter_module._frame_edge
+
+    def wrapped(*args, **kwargs):
+        total, count = original(*args, **kwargs)
+        if count:
+            edges.append((np.asarray(total, float), int(count)))
+        return total, count
+
+    return wrapped
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -162,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("scans", nargs="+", type=Path)
     ap.add_argument("--excess-over-background", type=float, default=None)
     ap.add_argument("--edge-px", type=float, default=None)
+    ap.add_argument(
+        "--per-frame", action="store_true", help="each frame's edge colour and the frames' vote"
+    )
     args = ap.parse_args(argv)
     measure = {
         k: v
@@ -172,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         if v is not None
     }
     for s in args.scans:
-        bench_scan(s, measure)
+        bench_scan(s, measure, args.per_frame)
     return 0
 
 

@@ -23,7 +23,7 @@ rays Embree's (:class:`reroom.rays.RayCaster`).
 Across frames: a frame whose edge colour is more than ``MAX_FRAME_DEVIATION`` off the
 frames' median colour in any channel is dropped (its background is not what lies
 behind its edge: on a second trajectory of `furnished`, two of ten frames of the tube
-read 0.75-0.80 / 1.01-1.02 / 1.19-1.23 against the others' 0.93-0.96 / 1.00 / 1.04-1.07,
+read 0.74-0.76 / 1.02 / 1.23-1.24 against the others' 0.93-0.96 / 0.98-1.01 / 1.04-1.08,
 and took the sum's red 5 % low and its blue 4.5 % high, the bootstrap's spread to 3.4 %).
 When the frames that disagree hold more than a third of the edge pixels there is no
 colour most frames agree on: none is dropped, and the bootstrap's spread over them all

@@ -256,7 +256,7 @@ def visible_projected_area(
         weight = weight / np.maximum(cos_phi, 0.05) * (centre_dist / np.maximum(dist, 1e-9)) ** 2
         # Only the side sets the radiance: the line model's J cos(phi) per metre is the
         # light of the tube's length, while an end cap's light grows as sin(phi), at the
-        # ends (6 % of a 1.2 m, 16 mm tube's light 70 degrees off its perpendicular).
+        # ends (a 1.2 m, 16 mm tube's cap is 5.7 % of its glowing area 70 degrees off).
         # Counting the caps' area here would spread the side's light over them; instead
         # they glow with the side's radiance (glow_layer gives every face of a source the
         # same value), as a uniformly glowing tube does.
