@@ -278,6 +278,8 @@ def consistent_frames(
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    # A handful of frames: numpy suffices (the HDR stage's numba kernel is per vertex,
+    # and private to that stage); numpy's own median takes no weights.
     order = np.argsort(values)
     cum = np.cumsum(weights[order])
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
