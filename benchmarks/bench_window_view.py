@@ -138,6 +138,9 @@ def main() -> None:
                  if x.get("name") == args.window)  # fmt: skip
         k = np.asarray(evaluate_invert(r)["radiance_scale"], float)
         maps[r.name] = read_exr(r / "invert" / e["environment_exr"])[..., :3].astype(float) / k
+        if e.get("view_exr"):  # what a camera looking out is shown (the photos' view)
+            view = read_exr(r / "invert" / e["view_exr"])[..., :3].astype(float) / k
+            maps[f"{r.name} (view)"] = view
     for n in (int(x) for x in args.oracle_cells.split(",") if x.strip()):
         from reroom.invert.export import latlong_from_cubemap
 

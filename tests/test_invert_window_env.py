@@ -503,3 +503,52 @@ def test_window_power_counts_the_cells_spread():
     # A weight of mean 1 over each cell but larger where the cosine is: more flux.
     tilted = window_power(cells, basis, n_in, 1.5, direction_weight=lambda d: 2.0 * np.abs(d[:, 1]))
     assert np.all(tilted > flat)
+
+
+def test_view_map_shows_the_photos_where_they_saw_the_outdoors(window_scan):
+    from reroom.invert.window_env import photo_environments, view_map
+
+    root, env = window_scan
+    (photos,), _ = observe_windows(root, _room(), [WINDOW], height=H)
+    light = np.full((H, 2 * H, 3), 0.3)
+    view, info = view_map(photos, light)
+    seen = np.isfinite(photos.mean).all(axis=-1)
+    assert info["texels_measured"] == seen.sum() > 40
+    # Measured texels: the photos' radiance (not the light map's 0.3); the rest: the
+    # light map, raised to what the clipped samples prove.
+    np.testing.assert_allclose(view[seen], env[seen], rtol=0.03)
+    sat_only = (photos.saturated > 0) & ~seen
+    assert sat_only.sum() > 5
+    np.testing.assert_allclose(view[sat_only], np.maximum(0.3, photos.bound[sat_only]))
+    never = ~seen & (photos.saturated == 0)
+    np.testing.assert_allclose(view[never], 0.3)
+    # Through photo_environments: the view at its own resolution, the light map as before.
+    basis = CubemapBasis(4)
+    cells = _cell_means(env, basis)
+    maps, infos, _ = photo_environments(
+        root, _room(), [(WINDOW, cells)], basis, height=H, view_height=2 * H
+    )
+    assert infos[0]["view_map"].shape == (2 * H, 4 * H, 3)
+    assert infos[0]["view"]["height"] == 2 * H and infos[0]["view"]["texels_measured"] > 100
+    assert maps[0].shape == (H, 2 * H, 3)
+
+
+def test_light_entries_write_the_view_map(tmp_path):
+    basis = CubemapBasis(4)
+    cells = np.full((basis.size, 3), 0.5)
+    geo = {k: getattr(WINDOW, k).tolist() for k in ("centre", "half_u", "half_v", "normal")}
+    result = SimpleNamespace(
+        cubemap_n=4,
+        lights=[SimpleNamespace(name="window0", kind="window")],
+        light_info=[{"geometry": geo}],
+        solve=SimpleNamespace(intensities={"window0": cells}, light_share={"window0": 1.0}),
+    )
+    env = np.full((16, 32, 3), 0.7, np.float32)
+    view = np.full((32, 64, 3), 2.0, np.float32)
+    figures = {"cells_refined": 3, "view_map": view, "view": {"texels_measured": 9}}
+    (e,) = light_entries(result, tmp_path, window_maps={"window0": (env, figures)})
+    assert e["view_exr"] == "window_window0_view.exr"
+    np.testing.assert_allclose(read_exr(tmp_path / e["view_exr"])[..., :3], 2.0)
+    assert "view_map" not in e["environment_photos"]  # the array goes to the file only
+    assert e["environment_photos"]["view"] == {"texels_measured": 9}
+    json.dumps(e)

@@ -53,7 +53,7 @@ import numpy as np
 import trimesh
 
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
-from reroom.edit.model import DEFAULT_MAX_DEPTH
+from reroom.edit.model import DEFAULT_MAX_DEPTH, _window_view
 from reroom.edit.objects import object_albedo
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
@@ -792,6 +792,8 @@ def edited_scene(
         if light["type"] == "window":
             exr = light.get("environment_exr", f"window_{light['name']}.exr")
             light["environment_exr"] = str((model.invert_dir / exr).resolve())
+            if light.get("view_exr"):
+                light["view_exr"] = str((model.invert_dir / light["view_exr"]).resolve())
     atomic_write_json(work / "scene.json", doc)
     scene = model_scene(
         scan_dir, work, model.lights_dir, work_dir=work / "meshes", max_depth=max_depth
@@ -891,6 +893,7 @@ def _apply_light(
         if st.off:
             entry.pop("emitter", None)
             return
+        view = None  # a new sky is seen as it is, not as the photos saw the old one
         if st.window is not None:
             from reroom.data import hdri_path
             from reroom.render.emitters import load_hdri
@@ -908,9 +911,14 @@ def _apply_light(
 
             exr = light.get("environment_exr", f"window_{light['name']}.exr")
             env = np.maximum(read_exr(model.invert_dir / exr)[..., :3], 0.0)
+            view = _window_view(model.invert_dir, light)
         geo = light["geometry"]
         opening = tuple(geo[k] for k in ("centre", "half_u", "half_v", "normal"))
-        entry["emitter"] = portal_emitter(np.asarray(env * gain, np.float32), opening=opening)
+        entry["emitter"] = portal_emitter(
+            np.asarray(env * gain, np.float32),
+            opening=opening,
+            view=None if view is None else np.asarray(view * gain, np.float32),
+        )
     elif kind in ("point", "line"):
         if st.off:
             del scene[key]

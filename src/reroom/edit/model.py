@@ -37,6 +37,7 @@ renders it.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -244,7 +245,9 @@ def model_scene(
                 "type": "rectangle",
                 "to_world": mi.ScalarTransform4f(m.tolist()),
                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
-                "emitter": portal_emitter(env, opening=(centre, hu, hv, normal)),
+                "emitter": portal_emitter(
+                    env, opening=(centre, hu, hv, normal), view=_window_view(inv, light)
+                ),
             }
         elif kind == "point":
             dist = light["distribution"]
@@ -360,3 +363,16 @@ def _add_glows(
             {},
         )
         scene[f"glow_{k:02d}"] = glow_entry(str(path), key, centre)
+
+
+def _window_view(invert_dir: Path, light: dict[str, Any]) -> np.ndarray | None:
+    """The map a camera looking out of a window is shown (``view_exr``), or None."""
+    name = light.get("view_exr")
+    if not name:
+        return None
+    path = Path(invert_dir) / name
+    if not path.is_file():
+        warnings.warn(f"window {light.get('name')!r}: {path} is missing; the camera sees "
+                      "the lighting map", stacklevel=2)  # fmt: skip
+        return None
+    return np.maximum(read_exr(path)[..., :3], 0.0)

@@ -320,6 +320,23 @@ def fill_poorly_seen(
     return np.where(support > 1e-12 * top, filled, 0.0)
 
 
+def _photo_shaped(profile: np.ndarray, fitted: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """``profile`` with each group marked in ``groups`` shaped as ``fitted`` there, its flux
+    (solid-angle weighted over the group's bins) kept."""
+    from reroom.invert.basis import InclinationBasis
+    from reroom.invert.fine_profiles import bin_solid_angles
+
+    out = np.asarray(profile, np.float64).copy()
+    omega = bin_solid_angles(InclinationBasis(len(out)))
+    g = len(out) // len(groups)
+    for i in np.flatnonzero(groups):
+        s = slice(i * g, (i + 1) * g)
+        got = float(omega[s] @ fitted[s])
+        if got > 0:
+            out[s] = fitted[s] * (float(omega[s] @ out[s]) / got)
+    return out
+
+
 def _line_basis_of(info: dict[str, Any], size: int) -> LineBasis:
     b = info.get("basis") or {}
     phi_bins = int(b.get("phi_bins", 1))
@@ -581,7 +598,12 @@ def light_entries(
                     source = "view+cells" if "view_hdri" in photo[1] else "photos+cells"
                 e["environment_source"] = source
                 if photo is not None:
-                    e["environment_photos"] = photo[1]
+                    figures = dict(photo[1])
+                    seen_view = figures.pop("view_map", None)
+                    if seen_view is not None:
+                        write_exr(out / f"window_{block.name}_view.exr", seen_view)
+                        e["view_exr"] = f"window_{block.name}_view.exr"
+                    e["environment_photos"] = figures
         elif block.kind == "point":
             solved = np.asarray(result.solve.profiles[block.name], np.float64)
             support = info.get("support")
@@ -598,6 +620,11 @@ def light_entries(
                 profile = fill_poorly_seen(solved, np.asarray(support), min_bin_support)
             else:
                 profile = solved
+            photo = info.get("photo_profile") or {}
+            if photo.get("groups") and len(profile) % len(photo["groups"]) == 0:
+                # The groups the photos' pixels reshaped take the refitted shape (their
+                # flux as filled above: the solve's where it saw them).
+                profile = _photo_shaped(profile, solved, np.asarray(photo["groups"], bool))
             color = result.solve.colors[block.name]
             e["color"] = color.tolist()
             e["distribution"] = {
@@ -616,6 +643,9 @@ def light_entries(
                 e["distribution"]["split_shares"] = [
                     [float(x) for x in halves] for halves in info["split_shares"]
                 ]
+            if info.get("photo_profile"):
+                # Refitted to the photos' pixels (reroom.invert.photo_profiles).
+                e["distribution"]["photo_profile"] = dict(info["photo_profile"])
             if "open_fraction" in info:
                 # The shape prior of a bulb in a shade: the part of each band it leaves open.
                 e["distribution"]["open_fraction"] = [float(x) for x in info["open_fraction"]]
@@ -661,8 +691,13 @@ def window_photo_maps(
     height: int = 128,
     min_bin_support: float = 0.01,
     view: tuple[str, float] | None = None,
+    view_height: int = 0,
 ) -> tuple[dict[str, tuple[np.ndarray, dict[str, Any]]], list[str]]:
     """Rendering maps of the result's windows from the scan's photos, by window name.
+
+    With ``view_height`` > 0 (and no captured ``view``) each window's figures hold
+    ``view_map``, what a camera looking through it is shown
+    (:func:`reroom.invert.window_env.view_map`).
 
     With ``view`` (``InvertOptions.window_view_hdri`` and its rotation), from that HDRI of
     the view instead (:class:`reroom.invert.window_env.WindowView`).
@@ -707,8 +742,9 @@ def window_photo_maps(
         return out, []
     try:
         maps, infos, stats = photo_environments(
-            scan_dir, mesh, [(o, c) for _, o, c, _ in wins], [b for *_, b in wins], height=height
-        )
+            scan_dir, mesh, [(o, c) for _, o, c, _ in wins], [b for *_, b in wins],
+            height=height, view_height=view_height,
+        )  # fmt: skip
     except (ReroomError, OSError, ValueError) as exc:
         return {}, [f"window photos: not used, the windows render their cells ({exc})"]
     notes = list(stats["notes"])
@@ -745,8 +781,9 @@ def write_outputs(
         if opts.get("window_view_hdri"):
             view = (str(opts["window_view_hdri"]), float(opts.get("window_view_rotation_deg", 0.0)))
         window_maps, photo_notes = window_photo_maps(
-            result, mesh, Path(meta["scan"]), min_bin_support=min_bin_support, view=view
-        )
+            result, mesh, Path(meta["scan"]), min_bin_support=min_bin_support, view=view,
+            view_height=int(opts.get("window_view_height", 0)),
+        )  # fmt: skip
         result.warnings.extend(photo_notes)
     flags = result.flags
     attrs = {

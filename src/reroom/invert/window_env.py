@@ -72,6 +72,7 @@ __all__ = [
     "photo_environments",
     "read_view_hdri",
     "refine_cells",
+    "view_map",
 ]
 
 
@@ -452,6 +453,33 @@ def refine_cells(
     return out.reshape(h, 2 * h, 3), info
 
 
+def view_map(photos: WindowPhotos, env: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """The window as a camera looking through it sees it: the photos' own radiance.
+
+    :func:`refine_cells` keeps every cell's solved mean, so that the light the window
+    sends into the room stays the solve's; looked at directly, though, a cell's mean is
+    only as good as the solve of that cell from the room's light (on `furnished`, a
+    frame that looks out of the window saw the sky through it at 1.03 / 0.86 / 0.77 of
+    the truth: the cells' colour). Where the photos saw a texel unsaturated, they measured
+    its radiance (in the HDR mesh's units, like every light): this map shows that, and
+    the lighting map ``env`` (resampled, bilinear) elsewhere, at least as bright as the
+    clipped samples' bound. The renderer shows it to the camera only
+    (:mod:`reroom.render.frames`); the room is lit by ``env``.
+
+    Returns the ``(H, 2H, 3)`` map (``photos``' resolution; :func:`fill_gaps` it first)
+    and counts: ``texels_measured`` and ``texels_from_light``.
+    """
+    from reroom.render.emitters import latlong_lookup as bilinear
+
+    h = photos.height
+    d = latlong_directions(h).reshape(-1, 3)
+    base = bilinear(np.asarray(env, np.float64), d).reshape(h, 2 * h, 3)
+    seen = np.isfinite(photos.mean).all(axis=-1)
+    out = np.where(seen[..., None], np.nan_to_num(photos.mean), np.maximum(base, photos.bound))
+    info = {"texels_measured": int(seen.sum()), "texels_from_light": int((~seen).sum())}
+    return np.maximum(out, 0.0), info
+
+
 def cell_means(
     photos: WindowPhotos,
     basis: CubemapBasis,
@@ -729,6 +757,7 @@ def photo_environments(
     height: int = 128,
     caster=None,
     fill: bool = True,
+    view_height: int = 0,
     **observe: Any,
 ) -> tuple[list[np.ndarray], list[dict[str, Any]], dict[str, Any]]:
     """Rendering maps of windows from the photos and their solved cells.
@@ -737,6 +766,10 @@ def photo_environments(
     (one for all, or one per window). Returns the
     maps (:func:`refine_cells`, after :func:`fill_gaps` if ``fill``), a dict of figures per window (with its ``samples`` and
     ``saturated`` counts), and the frame statistics of :func:`observe_windows`.
+
+    With ``view_height`` > 0 each window's figures also hold ``view_map``, the map a
+    camera looking through it is shown (:func:`view_map`, at that many rows; the photos
+    binned again at that resolution), and ``view`` its counts.
     """
     photos, stats = observe_windows(
         scan_dir, mesh, [w for w, _ in windows], height=height, caster=caster, **observe
@@ -751,4 +784,14 @@ def photo_environments(
         info["saturated"] = stats["saturated"][k]
         maps.append(env)
         infos.append(info)
+    if view_height > 0:
+        fine, _ = observe_windows(
+            scan_dir, mesh, [w for w, _ in windows], height=view_height, caster=caster, **observe
+        )
+        for k, ph in enumerate(fine):
+            # Two passes: a frame's pixels land a texel or two apart at this resolution.
+            ph = fill_gaps(fill_gaps(ph)) if fill else ph
+            view, vinfo = view_map(ph, maps[k])
+            infos[k]["view_map"] = view
+            infos[k]["view"] = {**vinfo, "height": int(view_height)}
     return maps, infos, stats

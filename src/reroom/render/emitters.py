@@ -444,8 +444,16 @@ def portal_emitter(
     rotation_deg: float = 0.0,
     opening: Sequence[Sequence[float]] | None = None,
     sky_sampling: float | None = None,
+    view: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Build a ``reroom_portal`` emitter dict (to nest under a shape's ``"emitter"`` key).
+
+    ``view`` is a second ``(H', W', 3)`` lat-long map (same convention, any size) that
+    the emitter shows instead of ``hdri`` while its parameter ``use_view`` is 1: what a
+    camera looking out sees (the photos' own radiance,
+    :func:`reroom.invert.window_env.view_map`), while the room is lit by ``hdri``.
+    :class:`reroom.render.frames.FrameRenderer` switches it for the pass that gives
+    the emitters seen directly.
 
     ``hdri`` is an EXR path or an ``(H, W, 3)`` lat-long array (see the module
     docstring for the convention); it is clamped to >= 0. ``opening`` is the shape's
@@ -478,6 +486,8 @@ def portal_emitter(
         d["opening_v"] = half_v.tolist()
     if sky_sampling is not None:
         d["sky_sampling"] = float(sky_sampling)
+    if view is not None:
+        d["view_data"] = mi.TensorXf(load_hdri(np.asarray(view, np.float32)))
     return d
 
 
@@ -849,6 +859,17 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
             dr.make_opaque(self.m_scale, self.m_cos_rot, self.m_sin_rot)
             self.m_flags = mi.EmitterFlags.Surface
             self._build_sky_sampling(img, props)
+            # The camera's view (portal_emitter's ``view``), shown while use_view is 1.
+            self.has_view = "view_data" in props
+            self.m_use_view = mi.Float(0.0)
+            if self.has_view:
+                view = np.maximum(np.nan_to_num(np.array(props["view_data"], np.float32)), 0.0)
+                if view.ndim != 3 or view.shape[2] < 3 or min(view.shape[:2]) < 2:
+                    raise ValueError(f"{PORTAL}: view_data must be (H >= 2, W >= 2, 3)")
+                view = view[..., :3]
+                self.view_height, self.view_width = int(view.shape[0]), int(view.shape[1])
+                vpad = np.concatenate([view, view[:, :1]], axis=1)
+                self.m_view = mi.Float(np.ascontiguousarray(vpad, dtype=np.float32).ravel())
 
         def _build_sky_sampling(self, img: np.ndarray, props: Any) -> None:
             """The second NEE strategy: directions drawn from the map's own brightness.
@@ -970,7 +991,14 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
         def _radiance(self, d: Any, active: Any = True) -> Any:
             """Outdoor radiance seen looking along the unit world direction ``d``."""
             u, v = self._map_uv(d)
-            w, h = self.width, self.height
+            light = self._lookup(self.m_data, self.width, self.height, u, v, active)
+            if not self.has_view:
+                return light
+            view = self._lookup(self.m_view, self.view_width, self.view_height, u, v, active)
+            return dr.select(self.m_use_view > 0.5, view, light)
+
+        def _lookup(self, data: Any, w: int, h: int, u: Any, v: Any, active: Any) -> Any:
+            """Bilinear lookup of a padded lat-long table at ``(u, v)``, times the scale."""
             fx = u * w - 0.5
             fx = dr.select(fx < 0, fx + w, fx)
             x0 = dr.minimum(mi.UInt32(dr.maximum(fx, 0.0)), w - 1)
@@ -979,10 +1007,10 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
             y0 = dr.minimum(mi.UInt32(fy), h - 2)
             wy = dr.clip(fy - mi.Float(y0), 0.0, 1.0)
             idx = y0 * (w + 1) + x0
-            c00 = dr.gather(mi.Color3f, self.m_data, idx, active)
-            c01 = dr.gather(mi.Color3f, self.m_data, idx + 1, active)
-            c10 = dr.gather(mi.Color3f, self.m_data, idx + (w + 1), active)
-            c11 = dr.gather(mi.Color3f, self.m_data, idx + (w + 2), active)
+            c00 = dr.gather(mi.Color3f, data, idx, active)
+            c01 = dr.gather(mi.Color3f, data, idx + 1, active)
+            c10 = dr.gather(mi.Color3f, data, idx + (w + 1), active)
+            c11 = dr.gather(mi.Color3f, data, idx + (w + 2), active)
             c0 = dr.lerp(c00, c01, wx)
             c1 = dr.lerp(c10, c11, wx)
             return mi.Spectrum(dr.lerp(c0, c1, wy) * self.m_scale)
@@ -1075,9 +1103,11 @@ def _make_classes(mi: ModuleType) -> tuple[type, type]:
 
         def traverse(self, callback: Any) -> None:
             callback.put("scale", self.m_scale, mi.ParamFlags.Differentiable)
+            if self.has_view:
+                callback.put("use_view", self.m_use_view, mi.ParamFlags.NonDifferentiable)
 
         def parameters_changed(self, keys: Any = None) -> None:
-            dr.make_opaque(self.m_scale)
+            dr.make_opaque(self.m_scale, self.m_use_view)
 
         def to_string(self) -> str:
             return (

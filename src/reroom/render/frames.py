@@ -86,13 +86,33 @@ class FrameRenderer:
         self.denoise = bool(denoise)
         self.aux_spp = int(aux_spp)
         self._aux = self._direct = None
-        if self.denoise:
+        # Windows that show the camera the photos' view (reroom_portal's ``view``): the
+        # emitters seen directly are rendered again with it switched on, and the
+        # difference is the camera's view through the window, exactly (same samples).
+        self._views = [k for k in self.params.keys() if k.endswith(".use_view")]
+        if self.denoise or self._views:
             from reroom.render.denoise import AUX_AOVS
 
             # A separate pass on the same loaded scene: wrapping the path tracer in the
             # aov integrator instead doubles its cost (measured, 640 x 360, 4 spp).
             self._aux = mi.load_dict({"type": "aov", "aovs": AUX_AOVS})
             self._direct = mi.load_dict({"type": "path", "max_depth": 1})
+
+    def _seen(self, seed: int, use_view: bool) -> np.ndarray:
+        """The emitters seen directly (a depth-1 path trace, ``spp`` samples, ``seed``),
+        the windows showing their view (``use_view``) or their lighting map."""
+        mi = self.mi
+        for k in self._views:
+            self.params[k] = 1.0 if use_view else 0.0
+        if self._views:
+            self.params.update()
+        seen = mi.render(self.scene, integrator=self._direct, spp=self.spp, seed=seed)
+        seen = np.nan_to_num(np.asarray(seen, dtype=np.float32)[..., :3])
+        if use_view and self._views:
+            for k in self._views:
+                self.params[k] = 0.0
+            self.params.update()
+        return seen
 
     def render(self, c2w: np.ndarray, seed: int) -> np.ndarray:
         """Linear RGB radiance ``(H, W, 3)`` float32 for camera pose ``c2w`` (OpenGL axes)."""
@@ -109,12 +129,11 @@ class FrameRenderer:
             )
             # Same seed and spp: the same camera samples, so this is exactly the part of
             # each pixel that is emission seen directly (edge pixels included).
-            seen = np.asarray(
-                mi.render(self.scene, integrator=self._direct, spp=self.spp, seed=seed),
-                dtype=np.float32,
-            )[..., :3]
-            seen = np.nan_to_num(seen)
-            img = denoise(np.maximum(img - seen, 0.0), aux[..., -6:-3], aux[..., -3:]) + seen
+            seen = self._seen(seed, False)
+            shown = self._seen(seed, True) if self._views else seen
+            img = denoise(np.maximum(img - seen, 0.0), aux[..., -6:-3], aux[..., -3:]) + shown
+        elif self._views:
+            img = img - self._seen(seed, False) + self._seen(seed, True)
         if self.glows:
             from reroom.render.glow import glow_layer
 
