@@ -552,3 +552,33 @@ def test_light_entries_write_the_view_map(tmp_path):
     assert "view_map" not in e["environment_photos"]  # the array goes to the file only
     assert e["environment_photos"]["view"] == {"texels_measured": 9}
     json.dumps(e)
+
+
+def test_view_map_takes_a_clipped_pixels_measured_channels_and_the_skys_colour():
+    from reroom.invert.window_env import view_map
+
+    h = 8
+    mean = np.full((h, 2 * h, 3), np.nan)
+    count = np.zeros((h, 2 * h), int)
+    bound = np.zeros((h, 2 * h, 3))
+    sat = np.zeros((h, 2 * h), int)
+    channel = np.full((h, 2 * h, 3), np.nan)
+    sky = np.array([0.6, 0.8, 1.0])
+    mean[2, :8] = sky * np.linspace(0.5, 1.0, 8)[:, None]  # seen unsaturated; brightest = sky
+    count[2, :8] = 3
+    channel[2, :8] = mean[2, :8]
+    # Clipped in red and green, blue measured at 3: the sky's colour says (1.8, 2.4, 3).
+    bound[3, 0], sat[3, 0], channel[3, 0, 2] = [1.0, 1.0, 3.0], 2, 3.0
+    # Same, but the bound is above what the colour says in red: the bound wins there.
+    bound[3, 1], sat[3, 1], channel[3, 1, 2] = [2.5, 1.0, 3.0], 2, 3.0
+    # Clipped everywhere: the light map raised to the bound.
+    bound[3, 2], sat[3, 2] = [0.2, 5.0, 0.2], 1
+    photos = WindowPhotos(mean, count, bound, sat, channel)
+    env = np.full((h, 2 * h, 3), 0.5)
+    view, info = view_map(photos, env)
+    np.testing.assert_allclose(view[3, 0], [1.8, 2.4, 3.0])
+    np.testing.assert_allclose(view[3, 1], [2.5, 2.4, 3.0])
+    np.testing.assert_allclose(view[3, 2], [0.5, 5.0, 0.5])
+    np.testing.assert_allclose(view[2, :8], mean[2, :8])
+    np.testing.assert_allclose(view[5, 5], 0.5)  # never seen: the light map
+    assert info == {"texels_measured": 8, "texels_partly_clipped": 2, "texels_from_light": 118}

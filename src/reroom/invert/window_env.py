@@ -125,12 +125,17 @@ class WindowPhotos:
         where there is none).
     saturated:
         ``(H, W)`` number of saturated samples.
+    channel_mean:
+        ``(H, W, 3)`` per channel, the mean over every sample whose code in *that*
+        channel is below the white level (a pixel clipped in red and green still
+        measures its blue); NaN where there is none. None when not gathered.
     """
 
     mean: np.ndarray
     count: np.ndarray
     bound: np.ndarray
     saturated: np.ndarray
+    channel_mean: np.ndarray | None = None
 
     @property
     def height(self) -> int:
@@ -151,26 +156,46 @@ class _Accumulator:
         self.count = np.zeros(n, np.int64)
         self.bound = np.zeros((n, 3))
         self.saturated = np.zeros(n, np.int64)
+        self.channel_total = np.zeros((n, 3))
+        self.channel_count = np.zeros((n, 3), np.int64)
 
-    def add(self, directions: np.ndarray, values: np.ndarray, sat: np.ndarray) -> None:
+    def add(
+        self,
+        directions: np.ndarray,
+        values: np.ndarray,
+        sat: np.ndarray,
+        clipped: np.ndarray | None = None,
+    ) -> None:
+        """Samples: their directions, radiance, whether saturated (any channel) and, per
+        channel, whether that channel clipped (default: all of a saturated sample's)."""
         idx = _texel_index(directions, self.height)
         ok = ~sat
         n = len(self.count)
+        clipped = np.repeat(sat[:, None], 3, axis=1) if clipped is None else clipped
         self.count += np.bincount(idx[ok], minlength=n)
         for c in range(3):
             self.total[:, c] += np.bincount(idx[ok], weights=values[ok, c], minlength=n)
             np.maximum.at(self.bound[:, c], idx[sat], values[sat, c])
+            fine = ~clipped[:, c]
+            self.channel_total[:, c] += np.bincount(
+                idx[fine], weights=values[fine, c], minlength=n
+            )
+            self.channel_count[:, c] += np.bincount(idx[fine], minlength=n)
         self.saturated += np.bincount(idx[sat], minlength=n)
 
     def result(self) -> WindowPhotos:
         h, w = self.height, 2 * self.height
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = np.where(self.count[:, None] > 0, self.total / self.count[:, None], np.nan)
+            channel = np.where(
+                self.channel_count > 0, self.channel_total / self.channel_count, np.nan
+            )
         return WindowPhotos(
             mean.reshape(h, w, 3),
             self.count.reshape(h, w),
             self.bound.reshape(h, w, 3),
             self.saturated.reshape(h, w),
+            channel.reshape(h, w, 3),
         )
 
 
@@ -228,7 +253,16 @@ def fill_gaps(photos: WindowPhotos) -> WindowPhotos:
     bound = photos.bound.copy()
     mean[fill_mean] = n_total[fill_mean] / n_count[fill_mean][:, None]
     bound[fill_bound] = n_bound[fill_bound]
-    return WindowPhotos(mean, photos.count.copy(), bound, photos.saturated.copy())
+    channel = photos.channel_mean
+    if channel is not None:  # each channel's measured texels' mean, as ``mean``'s
+        channel = channel.copy()
+        have = np.isfinite(channel)
+        for c in range(3):
+            n_have = neighbours(have[..., c].astype(np.float64), np.add, 0.0)
+            n_sum = neighbours(np.where(have[..., c], channel[..., c], 0.0), np.add, 0.0)
+            fill = empty & ~have[..., c] & (n_have > 0)
+            channel[fill, c] = n_sum[fill] / n_have[fill]
+    return WindowPhotos(mean, photos.count.copy(), bound, photos.saturated.copy(), channel)
 
 
 def _may_see_windows(frame, openings: list[WindowOpening], grid: int = 9) -> bool:
@@ -346,11 +380,12 @@ def observe_windows(
         keep = _interior(win.reshape(len(rows), len(cols))).ravel() if erode else win >= 0
         codes = img[ii.ravel(), jj.ravel()]
         values = linearize(codes, lut).astype(np.float64) / scale
-        sat = (codes >= saturation_level).any(axis=1)
+        clipped = codes >= saturation_level
+        sat = clipped.any(axis=1)
         for w in range(len(openings)):
             sel = keep & (win == w)
             if sel.any():
-                acc[w].add(d[sel], values[sel], sat[sel])
+                acc[w].add(d[sel], values[sel], sat[sel], clipped[sel])
                 stats["samples"][w] += int(sel.sum())
                 stats["saturated"][w] += int(sat[sel].sum())
         stats["frames_used"] += 1
@@ -453,21 +488,50 @@ def refine_cells(
     return out.reshape(h, 2 * h, 3), info
 
 
-def view_map(photos: WindowPhotos, env: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+def _local_colour(mean: np.ndarray, seen: np.ndarray, ref: np.ndarray, radius: int) -> np.ndarray:
+    """``(H, W, 3)`` the luminance-weighted mean colour of the texels seen unsaturated
+    within ``radius`` texels (``ref`` where none is)."""
+    from scipy.ndimage import uniform_filter
+
+    lum = np.where(seen, np.nan_to_num(mean) @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    size = 2 * int(radius) + 1
+    w = uniform_filter(lum, size, mode="wrap")
+    out = np.empty(mean.shape)
+    for c in range(3):
+        out[..., c] = uniform_filter(lum * np.nan_to_num(mean[..., c]), size, mode="wrap")
+    good = w > 1e-12 * max(float(lum.max()), 1e-300)
+    out[good] /= w[good, None]
+    out[~good] = ref
+    out[good] = np.where(out[good] > 0, out[good], ref)
+    return out
+
+
+def view_map(
+    photos: WindowPhotos, env: np.ndarray, reference_share: float = 0.2, radius: int = 10
+) -> tuple[np.ndarray, dict[str, Any]]:
     """The window as a camera looking through it sees it: the photos' own radiance.
 
     :func:`refine_cells` keeps every cell's solved mean, so that the light the window
     sends into the room stays the solve's; looked at directly, though, a cell's mean is
     only as good as the solve of that cell from the room's light (on `furnished`, a
-    frame that looks out of the window saw the sky through it at 1.03 / 0.86 / 0.77 of
-    the truth: the cells' colour). Where the photos saw a texel unsaturated, they measured
-    its radiance (in the HDR mesh's units, like every light): this map shows that, and
-    the lighting map ``env`` (resampled, bilinear) elsewhere, at least as bright as the
-    clipped samples' bound. The renderer shows it to the camera only
-    (:mod:`reroom.render.frames`); the room is lit by ``env``.
+    frame that looks out of the window saw the outdoors through it at 1.03 / 0.86 / 0.77
+    of the truth: the cells' colour). The photos measured what they saw:
 
-    Returns the ``(H, 2H, 3)`` map (``photos``' resolution; :func:`fill_gaps` it first)
-    and counts: ``texels_measured`` and ``texels_from_light``.
+    * a texel seen unsaturated shows the mean of its unsaturated samples;
+    * a texel seen only in pixels that clipped in some channels shows, in each channel
+      some sample did not clip, that channel's mean (``channel_mean``), and in the
+      clipped channels the larger of their bound and the measured channels times the
+      colour of the texels seen unsaturated within ``radius`` texels (weighted by
+      their luminance; where there are none, of the brightest ``reference_share`` seen
+      anywhere): a clipped patch is taken to have the colour of what is seen around it,
+      as far as that is brighter than the bound;
+    * a texel seen clipped in every channel shows the lighting map ``env`` (resampled,
+      bilinear) raised to its bound; one no photo saw, ``env``.
+
+    The renderer shows this map to the camera only (:mod:`reroom.render.frames`); the
+    room is lit by ``env``. Returns the ``(H, 2H, 3)`` map (``photos``' resolution;
+    :func:`fill_gaps` it first) and counts: ``texels_measured``,
+    ``texels_partly_clipped`` and ``texels_from_light``.
     """
     from reroom.render.emitters import latlong_lookup as bilinear
 
@@ -476,7 +540,26 @@ def view_map(photos: WindowPhotos, env: np.ndarray) -> tuple[np.ndarray, dict[st
     base = bilinear(np.asarray(env, np.float64), d).reshape(h, 2 * h, 3)
     seen = np.isfinite(photos.mean).all(axis=-1)
     out = np.where(seen[..., None], np.nan_to_num(photos.mean), np.maximum(base, photos.bound))
-    info = {"texels_measured": int(seen.sum()), "texels_from_light": int((~seen).sum())}
+    partly = np.zeros_like(seen)
+    if photos.channel_mean is not None and seen.any():
+        exact = np.isfinite(photos.channel_mean) & ~seen[..., None]
+        partly = exact.any(axis=-1) & ~exact.all(axis=-1)
+        lum = np.nan_to_num(photos.mean[seen]) @ np.array([0.2126, 0.7152, 0.0722])
+        top = lum >= np.quantile(lum, 1.0 - reference_share)
+        ref = np.median(np.nan_to_num(photos.mean[seen][top]), axis=0)
+        if np.all(ref > 0) and partly.any():
+            cm = np.where(exact, photos.channel_mean, np.nan)[partly]
+            colour = _local_colour(photos.mean, seen, ref, radius)[partly]
+            level = np.nanmean(cm / colour, axis=-1)  # the measured channels over the colour
+            guess = np.maximum(photos.bound[partly], level[:, None] * colour)
+            out[partly] = np.where(np.isfinite(cm), cm, guess)
+        else:
+            partly[:] = False
+    info = {
+        "texels_measured": int(seen.sum()),
+        "texels_partly_clipped": int(partly.sum()),
+        "texels_from_light": int((~seen & ~partly).sum()),
+    }
     return np.maximum(out, 0.0), info
 
 
