@@ -177,9 +177,7 @@ class _Accumulator:
             self.total[:, c] += np.bincount(idx[ok], weights=values[ok, c], minlength=n)
             np.maximum.at(self.bound[:, c], idx[sat], values[sat, c])
             fine = ~clipped[:, c]
-            self.channel_total[:, c] += np.bincount(
-                idx[fine], weights=values[fine, c], minlength=n
-            )
+            self.channel_total[:, c] += np.bincount(idx[fine], weights=values[fine, c], minlength=n)
             self.channel_count[:, c] += np.bincount(idx[fine], minlength=n)
         self.saturated += np.bincount(idx[sat], minlength=n)
 
