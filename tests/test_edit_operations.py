@@ -753,3 +753,54 @@ def test_photo_textures_render_on_the_scan_and_as_pattern_in_the_empty_room(
     )
     assert "texture_floor_0" not in painted
     np.testing.assert_allclose(_probe(painted, right)[:, 0], _direct(right, rho=0.5), rtol=3e-3)
+
+
+def test_a_window_shows_its_view_unless_its_sky_is_swapped(scan: Path, tmp_path: Path) -> None:
+    """The recovered window's ``view_exr`` goes to the camera; a new sky replaces both;
+    a dimmed window dims both."""
+    import shutil
+
+    from reroom.io.images import write_exr
+
+    room = tmp_path / "scan"
+    shutil.copytree(scan, room)
+    doc = json.loads((room / "invert" / "scene.json").read_text())
+    window = {
+        "name": "w",
+        "type": "window",
+        "geometry": {
+            "centre": [2.0, 0.0, 1.4],
+            "half_u": [0.5, 0.0, 0.0],
+            "half_v": [0.0, 0.0, 0.4],
+            "normal": [0.0, 1.0, 0.0],
+        },
+        "distribution": {"basis": "cubemap", "n": 4, "cells": np.full((96, 3), 0.2).tolist()},
+        "environment_exr": "window_w.exr",
+        "view_exr": "window_w_view.exr",
+    }
+    write_exr(room / "invert" / "window_w.exr", np.full((8, 16, 3), 0.2, np.float32))
+    write_exr(room / "invert" / "window_w_view.exr", np.full((16, 32, 3), 0.7, np.float32))
+    doc["lights"].append(window)
+    (room / "invert" / "scene.json").write_text(json.dumps(doc))
+
+    def portal(scene: dict) -> dict:
+        return next(
+            v["emitter"]
+            for v in scene.values()
+            if isinstance(v, dict) and "emitter" in v and v["emitter"]["type"] == "reroom_portal"
+        )
+
+    base = portal(edited_scene(room, [], max_depth=2))
+    np.testing.assert_allclose(np.array(base["view_data"]), 0.7)
+    np.testing.assert_allclose(np.array(base["data"]), 0.2)
+    dimmed = portal(edited_scene(room, [{"op": "light", "name": "w", "scale": 0.5}], max_depth=2))
+    np.testing.assert_allclose(np.array(dimmed["view_data"]), 0.35, rtol=1e-6)
+    swapped = portal(
+        edited_scene(room, [{"op": "window", "name": "w", "hdri": "sunrise"}], max_depth=2)
+    )
+    assert "view_data" not in swapped
+    # A view file named but missing: a warning naming it, and the light map alone.
+    (room / "invert" / "window_w_view.exr").unlink()
+    with pytest.warns(UserWarning, match="window_w_view.exr is missing"):
+        plain = portal(edited_scene(room, [], max_depth=2))
+    assert "view_data" not in plain

@@ -53,7 +53,7 @@ import numpy as np
 import trimesh
 
 from reroom.edit.edits import LABEL_TARGETS, EditError, as_ops, check_names
-from reroom.edit.model import DEFAULT_MAX_DEPTH, _window_view
+from reroom.edit.model import DEFAULT_MAX_DEPTH, read_window_view
 from reroom.edit.objects import object_albedo
 from reroom.errors import ReroomError, ScanError
 from reroom.io.atomic import atomic_write_json
@@ -911,7 +911,7 @@ def _apply_light(
 
             exr = light.get("environment_exr", f"window_{light['name']}.exr")
             env = np.maximum(read_exr(model.invert_dir / exr)[..., :3], 0.0)
-            view = _window_view(model.invert_dir, light)
+            view = read_window_view(model.invert_dir, light)
         geo = light["geometry"]
         opening = tuple(geo[k] for k in ("centre", "half_u", "half_v", "normal"))
         entry["emitter"] = portal_emitter(

@@ -246,7 +246,7 @@ def model_scene(
                 "to_world": mi.ScalarTransform4f(m.tolist()),
                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
                 "emitter": portal_emitter(
-                    env, opening=(centre, hu, hv, normal), view=_window_view(inv, light)
+                    env, opening=(centre, hu, hv, normal), view=read_window_view(inv, light)
                 ),
             }
         elif kind == "point":
@@ -365,14 +365,16 @@ def _add_glows(
         scene[f"glow_{k:02d}"] = glow_entry(str(path), key, centre)
 
 
-def _window_view(invert_dir: Path, light: dict[str, Any]) -> np.ndarray | None:
-    """The map a camera looking out of a window is shown (``view_exr``), or None."""
+def read_window_view(invert_dir: Path, light: dict[str, Any]) -> np.ndarray | None:
+    """The map a camera looking out of a recovered window is shown (its ``view_exr``,
+    relative to ``invert_dir``), or None when it has none. A named file that is missing
+    gives a warning naming it, and None: the camera then sees the lighting map."""
     name = light.get("view_exr")
     if not name:
         return None
     path = Path(invert_dir) / name
     if not path.is_file():
-        warnings.warn(f"window {light.get('name')!r}: {path} is missing; the camera sees "
-                      "the lighting map", stacklevel=2)  # fmt: skip
+        msg = f"window {light.get('name')!r}: {path} is missing; the camera sees the light map"
+        warnings.warn(msg, stacklevel=2)
         return None
     return np.maximum(read_exr(path)[..., :3], 0.0)
