@@ -755,9 +755,8 @@ def test_photo_textures_render_on_the_scan_and_as_pattern_in_the_empty_room(
     np.testing.assert_allclose(_probe(painted, right)[:, 0], _direct(right, rho=0.5), rtol=3e-3)
 
 
-def test_a_window_shows_its_view_unless_its_sky_is_swapped(scan: Path, tmp_path: Path) -> None:
-    """The recovered window's ``view_exr`` goes to the camera; a new sky replaces both;
-    a dimmed window dims both."""
+def _scan_with_window(scan: Path, tmp_path: Path) -> Path:
+    """A copy of ``scan`` whose model has a window ``w`` (cells and map at 0.2)."""
     import shutil
 
     from reroom.io.images import write_exr
@@ -776,11 +775,22 @@ def test_a_window_shows_its_view_unless_its_sky_is_swapped(scan: Path, tmp_path:
         },
         "distribution": {"basis": "cubemap", "n": 4, "cells": np.full((96, 3), 0.2).tolist()},
         "environment_exr": "window_w.exr",
-        "view_exr": "window_w_view.exr",
     }
     write_exr(room / "invert" / "window_w.exr", np.full((8, 16, 3), 0.2, np.float32))
-    write_exr(room / "invert" / "window_w_view.exr", np.full((16, 32, 3), 0.7, np.float32))
     doc["lights"].append(window)
+    (room / "invert" / "scene.json").write_text(json.dumps(doc))
+    return room
+
+
+def test_a_window_shows_its_view_unless_its_sky_is_swapped(scan: Path, tmp_path: Path) -> None:
+    """The recovered window's ``view_exr`` goes to the camera; a new sky replaces both;
+    a dimmed window dims both."""
+    from reroom.io.images import write_exr
+
+    room = _scan_with_window(scan, tmp_path)
+    write_exr(room / "invert" / "window_w_view.exr", np.full((16, 32, 3), 0.7, np.float32))
+    doc = json.loads((room / "invert" / "scene.json").read_text())
+    doc["lights"][-1]["view_exr"] = "window_w_view.exr"
     (room / "invert" / "scene.json").write_text(json.dumps(doc))
 
     def portal(scene: dict) -> dict:

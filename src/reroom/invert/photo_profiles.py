@@ -118,15 +118,11 @@ def photo_samples(
     read is skipped with a note naming the file.
     """
     from reroom.hdr.linearize import linearize
-    from reroom.invert.photos import frame_scale, read_frame_scales, scan_response
+    from reroom.invert.photos import frame_scale, open_photos
     from reroom.rays import RayCaster
-    from reroom.scan import load_scan
 
-    scan_dir = Path(scan_dir)
     notes: list[str] = []
-    scan = load_scan(scan_dir, check_images=False)
-    doc, scales = read_frame_scales(scan_dir)
-    lut = scan_response(doc, scan.meta, notes.append)
+    scan, scales, lut = open_photos(scan_dir, notes.append)
     caster = caster if caster is not None else RayCaster(mesh)
     vertices = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)

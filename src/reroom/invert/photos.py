@@ -17,7 +17,7 @@ import numpy as np
 
 from reroom.errors import ReroomError
 
-__all__ = ["frame_scale", "read_frame_scales", "scan_response"]
+__all__ = ["frame_scale", "open_photos", "read_frame_scales", "scan_response"]
 
 
 def read_frame_scales(scan: Path) -> tuple[dict, list[Any]]:
@@ -58,3 +58,17 @@ def scan_response(doc: dict, meta: dict, note: Callable[[str], None]) -> np.ndar
             spec = "auto"
         return response_lut(spec, meta)
     return response_lut(name, meta)
+
+
+def open_photos(
+    scan_dir: str | Path, note: Callable[[str], None]
+) -> tuple[Any, list[Any], np.ndarray]:
+    """What reading a scan's photos in the HDR mesh's units takes: the scan (frames not
+    checked), each frame's exposure ``scale`` (:func:`read_frame_scales`) and the inverse
+    response (:func:`scan_response`; ``note`` hears how it was chosen)."""
+    from reroom.scan import load_scan
+
+    scan_dir = Path(scan_dir)
+    scan = load_scan(scan_dir, check_images=False)
+    doc, scales = read_frame_scales(scan_dir)
+    return scan, scales, scan_response(doc, scan.meta, note)

@@ -54,7 +54,7 @@ import numpy as np
 
 from reroom.errors import ReroomError, ScanError
 from reroom.invert.basis import CubemapBasis
-from reroom.invert.photos import frame_scale, read_frame_scales, scan_response
+from reroom.invert.photos import frame_scale, open_photos
 from reroom.invert.windows import WindowOpening, rays_through_windows
 
 __all__ = [
@@ -329,13 +329,9 @@ def observe_windows(
     """
     from reroom.hdr.linearize import linearize
     from reroom.rays import RayCaster
-    from reroom.scan import load_scan
 
-    scan_dir = Path(scan_dir)
     notes: list[str] = []
-    scan = load_scan(scan_dir, check_images=False)
-    doc, scales = read_frame_scales(scan_dir)
-    lut = scan_response(doc, scan.meta, notes.append)
+    scan, scales, lut = open_photos(scan_dir, notes.append)
     caster = caster if caster is not None else RayCaster(mesh)
     acc = [_Accumulator(height) for _ in openings]
     stats: dict[str, Any] = {
