@@ -403,36 +403,11 @@ def test_window_swap_scales_into_model_units() -> None:
 
 def test_window_swap_shows_the_new_sky_at_full_resolution(scan: Path, tmp_path: Path) -> None:
     """The swapped window shows the whole HDRI (a sharp sun), scaled into model units."""
-    import shutil
-
     from reroom.data import hdri_path
-    from reroom.invert.basis import CubemapBasis
-    from reroom.io.images import write_exr
     from reroom.render.emitters import load_hdri
 
-    room = tmp_path / "scan"
-    shutil.copytree(scan, room)
-    doc = json.loads((room / "invert" / "scene.json").read_text())
-    basis = CubemapBasis(4)
-    window = {
-        "name": "w",
-        "type": "window",
-        "geometry": {
-            "centre": [2.0, 0.0, 1.4],
-            "half_u": [0.5, 0.0, 0.0],
-            "half_v": [0.0, 0.0, 0.4],
-            "normal": [0.0, 1.0, 0.0],
-        },
-        "distribution": {
-            "basis": "cubemap",
-            "n": 4,
-            "cells": np.full((basis.size, 3), 0.2).tolist(),
-        },
-        "environment_exr": "window_w.exr",
-    }
-    write_exr(room / "invert" / "window_w.exr", np.full((8, 16, 3), 0.2, np.float32))
-    doc["lights"].append(window)
-    (room / "invert" / "scene.json").write_text(json.dumps(doc))
+    room = _scan_with_window(scan, tmp_path)
+    window = json.loads((room / "invert" / "scene.json").read_text())["lights"][-1]
     base = edited_scene(room, [], max_depth=2)
     swapped = edited_scene(room, [{"op": "window", "name": "w", "hdri": "sunrise"}], max_depth=2)
     key = next(

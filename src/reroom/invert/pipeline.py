@@ -1820,6 +1820,17 @@ def _point_transfer(caster, p_recv, n_recv, position, axis, basis, options) -> n
     )  # fmt: skip
 
 
+def _point_blocks(blocks: list[LightBlock]):
+    """``(index, block, columns)`` of each point light among ``blocks`` (its columns in
+    the stacked transfer matrix)."""
+    start = 0
+    for k, block in enumerate(blocks):
+        cols = slice(start, start + block.size)
+        start += block.size
+        if block.kind == "point":
+            yield k, block, cols
+
+
 def _split_point_bins(
     caster, p_recv, n_recv, rows, blocks, columns, info, problem, result, options
 ) -> None:
@@ -1832,12 +1843,7 @@ def _split_point_bins(
     gain = np.nan_to_num(result.albedo[problem.cluster]) / np.pi
     model = gain * (problem.indirect + problem.transfer @ result.intensity_vector(blocks))
     weights = np.where(used[:, None] & np.isfinite(result.weights), result.weights, 0.0)
-    start = 0
-    for k, block in enumerate(blocks):
-        cols = slice(start, start + block.size)
-        start += block.size
-        if block.kind != "point":
-            continue
+    for k, block, cols in _point_blocks(blocks):
         g = info[k]["geometry"]
         basis = InclinationBasis(2 * block.size)
         fine = _point_transfer(caster, p_recv, n_recv, g["position"], g["axis"], basis, options)
@@ -1906,12 +1912,7 @@ def _photo_point_profiles(
     total = np.full((nv, 3), np.nan)
     total[receivers] = np.asarray(indirect) + np.asarray(transfer @ result.intensity_vector(blocks))
     rho_s = samples.interpolate(faces, rho)
-    start = 0
-    for k, block in enumerate(blocks):
-        cols = slice(start, start + block.size)
-        start += block.size
-        if block.kind != "point":
-            continue
+    for k, block, cols in _point_blocks(blocks):
         g = info[k]["geometry"]
         own = np.full((nv, 3), np.nan)
         own[receivers] = np.asarray(transfer[:, cols] @ result.intensities[block.name])
