@@ -92,3 +92,16 @@ def test_photo_samples_interpolate_per_vertex_values():
     assert np.isnan(s.interpolate(faces, with_nan)[1, 0])
     assert len(s) == 2
     pytest.importorskip("scipy")
+
+
+def test_even_subset_keeps_sparse_bins_whole_and_caps_the_crowded():
+    from reroom.invert.photo_profiles import even_subset
+
+    bins = np.concatenate([np.zeros(10_000, int), np.full(50, 1), np.full(3_000, 2)])
+    keep = even_subset(bins, 2_000, seed=3)
+    assert len(keep) <= 2_000 and np.all(np.diff(keep) > 0)
+    counts = np.bincount(bins[keep], minlength=3)
+    assert counts[1] == 50  # the sparse bin whole
+    assert abs(counts[0] - counts[2]) <= 1 and counts[0] >= 900  # the crowded ones alike
+    np.testing.assert_array_equal(even_subset(bins, 2_000, seed=3), keep)  # seeded
+    np.testing.assert_array_equal(even_subset(bins[:40], 100), np.arange(40))

@@ -44,7 +44,7 @@ from scipy.optimize import lsq_linear
 
 from reroom.errors import ReroomError
 
-__all__ = ["PhotoSamples", "ProfileRefit", "photo_samples", "refit_point_profile"]
+__all__ = ["PhotoSamples", "ProfileRefit", "even_subset", "photo_samples", "refit_point_profile"]
 
 
 @dataclass
@@ -216,6 +216,37 @@ class ProfileRefit:
     residual_before: float
     residual_after: float
     groups: np.ndarray
+
+
+def even_subset(bins: np.ndarray, limit: int, seed: int = 0) -> np.ndarray:
+    """Indices of at most about ``limit`` samples, spread evenly over their ``bins``.
+
+    Every bin keeps up to the same number of its samples (a seeded random choice), the
+    largest number that keeps the total within ``limit``: a bin few pixels see keeps
+    all of them, the floor right under a downlight, seen by hundreds of thousands of a
+    300-frame scan's pixels, keeps its share. Sorted indices; all of them when there
+    are no more than ``limit``.
+    """
+    bins = np.asarray(bins, np.int64)
+    n = len(bins)
+    if n <= limit:
+        return np.arange(n)
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(n)
+    b = bins[order]
+    sort = np.argsort(b, kind="stable")
+    counts = np.bincount(b)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rank = np.empty(n, np.int64)
+    rank[sort] = np.arange(n) - np.repeat(starts, counts)
+    lo, hi = 1, int(counts.max())
+    while lo < hi:  # the largest quota whose kept total is within the limit
+        mid = (lo + hi + 1) // 2
+        if np.minimum(counts, mid).sum() <= limit:
+            lo = mid
+        else:
+            hi = mid - 1
+    return np.sort(order[rank < lo])
 
 
 def _hat_matrix(theta: np.ndarray, value: np.ndarray, bins: int) -> sp.csr_matrix:
