@@ -123,7 +123,7 @@ class InvertOptions:
         cluster albedo, as the solve takes it. A wooden floor's planks differ from that
         mean, and the Huber weights leave the outliers out; the floor holds the beam's
         middle, which no wall sees (on `furnished` the downlight's profile at 128 bins
-        comes to 8.0 % of the truth with the floor, 11.3 % without, from 13.8 %).
+        came to 8.0 % of the truth with the floor, 11.3 % without, from 13.8 %).
     point_photo_samples : int
         Photo pixels that fit takes per light at most, spread evenly over the bins
         (:func:`reroom.invert.photo_profiles.even_subset`): on the 300-frame 640x360
