@@ -118,7 +118,7 @@ def photo_samples(
     read is skipped with a note naming the file.
     """
     from reroom.hdr.linearize import linearize
-    from reroom.invert.photos import frame_scale, open_photos
+    from reroom.invert.photos import frame_scale, open_photos, pixel_grid
     from reroom.rays import RayCaster
 
     notes: list[str] = []
@@ -136,9 +136,7 @@ def photo_samples(
             stats["frames_no_exposure"] += 1
             continue
         k = frame.intrinsics
-        stride = max(1, int(np.ceil(np.sqrt(k.width * k.height / max_rays_per_frame))))
-        cols = np.arange(0, k.width, stride)
-        rows = np.arange(0, k.height, stride)
+        rows, cols = pixel_grid(k.width, k.height, max_rays_per_frame)
         jj, ii = np.meshgrid(cols, rows)
         o, d = frame.pixel_rays(np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], axis=1))
         hits = caster.intersect(o, d, tmin=caster.eps)

@@ -17,7 +17,7 @@ import numpy as np
 
 from reroom.errors import ReroomError
 
-__all__ = ["frame_scale", "open_photos", "read_frame_scales", "scan_response"]
+__all__ = ["frame_scale", "open_photos", "pixel_grid", "read_frame_scales", "scan_response"]
 
 
 def read_frame_scales(scan: Path) -> tuple[dict, list[Any]]:
@@ -72,3 +72,10 @@ def open_photos(
     scan = load_scan(scan_dir, check_images=False)
     doc, scales = read_frame_scales(scan_dir)
     return scan, scales, scan_response(doc, scan.meta, note)
+
+
+def pixel_grid(width: int, height: int, max_rays: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of a regular pixel grid with at most about ``max_rays`` pixels
+    (every ``stride``-th pixel both ways): the pixels the photo readers cast."""
+    stride = max(1, int(np.ceil(np.sqrt(width * height / max(int(max_rays), 1)))))
+    return np.arange(0, height, stride), np.arange(0, width, stride)

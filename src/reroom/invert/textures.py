@@ -314,8 +314,10 @@ def match_planes(
 
 
 def _sample_grid(width: int, height: int, max_rays: int) -> tuple[np.ndarray, np.ndarray]:
-    stride = max(1, int(np.ceil(np.sqrt(width * height / max(max_rays, 1)))))
-    jj, ii = np.meshgrid(np.arange(0, width, stride), np.arange(0, height, stride))
+    from reroom.invert.photos import pixel_grid
+
+    rows, cols = pixel_grid(width, height, max_rays)
+    jj, ii = np.meshgrid(cols, rows)
     return ii.ravel(), jj.ravel()
 
 

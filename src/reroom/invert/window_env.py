@@ -54,7 +54,7 @@ import numpy as np
 
 from reroom.errors import ReroomError, ScanError
 from reroom.invert.basis import CubemapBasis
-from reroom.invert.photos import frame_scale, open_photos
+from reroom.invert.photos import frame_scale, open_photos, pixel_grid
 from reroom.invert.windows import WindowOpening, rays_through_windows
 
 __all__ = [
@@ -352,9 +352,7 @@ def observe_windows(
             stats["frames_used"] += 1
             stats["frames_skipped_no_window"] = stats.get("frames_skipped_no_window", 0) + 1
             continue
-        stride = max(1, int(np.ceil(np.sqrt(k.width * k.height / max_rays_per_frame))))
-        cols = np.arange(0, k.width, stride)
-        rows = np.arange(0, k.height, stride)
+        rows, cols = pixel_grid(k.width, k.height, max_rays_per_frame)
         jj, ii = np.meshgrid(cols, rows)
         uv = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], axis=1)
         o, d = frame.pixel_rays(uv)
