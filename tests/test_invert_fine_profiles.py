@@ -87,7 +87,13 @@ def test_the_pipeline_exports_twice_the_bins_at_the_solve_s_power(tmp_path: Path
 
 
 def test_a_negative_number_of_splits_is_refused_before_any_work(tmp_path: Path) -> None:
-    for bad in ({"point_splits": -1}, {"fill_albedo": 0.0}):
+    for bad in (
+        {"point_splits": -1},
+        {"fill_albedo": 0.0},
+        {"point_photo_clusters": "wall,sofa"},
+        {"point_photo_samples": 10},
+        {"window_view_height": -1},
+    ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             run_invert(tmp_path / "nothing_here", None, InvertOptions(**bad))
     assert not (tmp_path / "nothing_here").exists()

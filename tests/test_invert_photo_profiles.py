@@ -105,3 +105,28 @@ def test_even_subset_keeps_sparse_bins_whole_and_caps_the_crowded():
     assert abs(counts[0] - counts[2]) <= 1 and counts[0] >= 900  # the crowded ones alike
     np.testing.assert_array_equal(even_subset(bins, 2_000, seed=3), keep)  # seeded
     np.testing.assert_array_equal(even_subset(bins[:40], 100), np.arange(40))
+
+
+def test_photo_samples_skip_an_unreadable_frame_with_a_note(tmp_path):
+    """A frame whose image is corrupt is left out, named in the notes; the others count."""
+    import trimesh
+
+    from reroom.invert.photo_profiles import photo_samples
+    from reroom.scan import Intrinsics, look_at, write_scan
+
+    room = trimesh.creation.box(extents=[4.0, 3.0, 2.5])
+    room.apply_translation([0.0, 0.0, 1.25])
+    intr = Intrinsics.from_fov(48, 36, 70.0)
+    poses = [look_at([0.0, 0.0, 1.3], [1.5, 0.5, 1.0]), look_at([0.5, 0.2, 1.4], [-1.5, 0.4, 1.0])]
+    images = [np.full((36, 48, 3), 120, np.uint8)] * 2
+    write_scan(tmp_path, room, intr, poses, images, meta={"reroom": {"response": "gamma2.2"}})
+    (tmp_path / "hdr").mkdir()
+    doc = {"response": "gamma2.2", "frames": [{"index": j, "scale": [1.0] * 3} for j in range(2)]}
+    (tmp_path / "hdr" / "exposures.json").write_text(__import__("json").dumps(doc))
+    broken = sorted((tmp_path / "images").iterdir())[1]
+    broken.write_bytes(b"not a png")
+    samples, stats = photo_samples(tmp_path, room, np.ones(len(room.faces), bool))
+    assert stats["frames_used"] == 1 and len(samples) > 500
+    assert any(broken.name in n for n in stats["notes"])
+    # linearised (gamma 2.2) and divided by the scale
+    np.testing.assert_allclose(samples.radiance, (120 / 255) ** 2.2, rtol=0.02)

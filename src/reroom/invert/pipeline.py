@@ -992,6 +992,11 @@ def run_invert(
         raise ValueError(f"fill_albedo must be in (0, 1], got {options.fill_albedo}")
     if options.point_splits < 0:
         raise ValueError(f"point_splits must be >= 0, got {options.point_splits}")
+    _photo_clusters(options)  # a misspelt cluster fails here, not after the solve
+    if options.point_photo_samples < 100:
+        raise ValueError(f"point_photo_samples must be >= 100, got {options.point_photo_samples}")
+    if options.window_view_height < 0:
+        raise ValueError(f"window_view_height must be >= 0, got {options.window_view_height}")
     if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
         raise ValueError(f"window_smooth must be a finite number >= 0, got {options.window_smooth}")
     if options.render_window_cells < 0:
@@ -1867,6 +1872,18 @@ def _split_point_bins(
             info[k]["open_fraction"] = np.repeat(info[k]["open_fraction"], 2).tolist()
 
 
+def _photo_clusters(options: InvertOptions) -> list[int]:
+    """The cluster labels ``options.point_photo_clusters`` names (ValueError naming any
+    that is not a cluster)."""
+    chosen = [c.strip() for c in options.point_photo_clusters.split(",") if c.strip()]
+    unknown = [c for c in chosen if c not in CLUSTER_LABELS]
+    if unknown:
+        raise ValueError(
+            f"point_photo_clusters names {unknown}; clusters are {', '.join(CLUSTER_LABELS)}"
+        )
+    return [CLUSTER_LABELS[c] for c in chosen]
+
+
 def _photo_point_profiles(
     scan: Path, mesh, caster, labels, receivers, rows, indirect, transfer, blocks, info,
     result, options: InvertOptions, notes: list[str], evaluation_radiance: bool,
@@ -1883,13 +1900,7 @@ def _photo_point_profiles(
         return
     nv = len(mesh.vertices)
     faces = np.asarray(mesh.faces, np.int64)
-    chosen = [c.strip() for c in options.point_photo_clusters.split(",") if c.strip()]
-    unknown = [c for c in chosen if c not in CLUSTER_LABELS]
-    if unknown:
-        raise ValueError(
-            f"point_photo_clusters names {unknown}; clusters are {', '.join(CLUSTER_LABELS)}"
-        )
-    wanted = [CLUSTER_LABELS[c] for c in chosen]
+    wanted = _photo_clusters(options)
     names = list(CLUSTER_LABELS)
     # The clustered receivers the solve fitted: their cluster and albedo.
     rho = np.full((nv, 3), np.nan)
