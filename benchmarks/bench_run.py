@@ -94,6 +94,12 @@ def evaluate(scan: Path, invert_dir: Path) -> None:
     print("\n| cluster | albedo error r/g/b |\n|---|---|")
     for name, c in rep["clusters"].items():
         print(f"| {name} | {_pct(c['relative_error'])} |")
+    for which, st in rep["per_vertex"].items():
+        if st is not None:
+            print(
+                f"per-vertex albedo error ({which}, {st['vertices']} vertices): median "
+                f"{100 * st['median']:.2f} %, 90th percentile {100 * st['p90']:.1f} %"
+            )
     print("\n| light | truth | off by | power error | leaving the fitting | distribution L2 |")
     print("|---|---|---|---|---|---|")
     for light in rep["lights"]:
