@@ -272,8 +272,13 @@ def _row(label: str, report: dict) -> str:
     return f"| {label} | " + " | ".join(cells) + " | " + "; ".join(powers) + " |"
 
 
-#: Extra InvertOptions of every run (``--invert``, e.g. ``{"near_distance": 0}``).
-INVERT_EXTRA: dict = {}
+#: Extra InvertOptions of every run (``--invert``, e.g. ``{"near_distance": 0}``, added to
+#: these). The point lights stay at the solve's bins: the splits to 128 bins and the photo
+#: profile reshape each solved bin after the solve (powers and albedos unchanged), but they
+#: leave the run's problem with 128-bin columns, and re-solving that (``--resolve-variants``,
+#: ``--shares``, ``--fix-*``) is another, freer problem than the one the run solved: on the
+#: second walk of `furnished` it moved the tube by 8 points before any variant was applied.
+INVERT_EXTRA: dict = {"point_splits": 0, "point_photo_profile": False}
 
 
 _invert_result_cache: dict[Path, object] = {}

@@ -61,6 +61,19 @@ def test_alternating_solver_recovers_an_uncoupled_problem() -> None:
     assert _seen_error(result, truth) < 1e-3
 
 
+@pytest.mark.parametrize("method", ["joint", "alternating"])
+def test_progress_ends_at_its_total_when_the_solve_converges_early(method) -> None:
+    problem, _ = synthetic_problem(600, lights=("area", "window"), seed=5)
+    calls: list[tuple[int, int]] = []
+    opts = SolveOptions(method=method, max_iterations=400, max_rounds=30, tolerance=1e-5)
+    result = solve_lighting(problem, opts, progress=lambda _s, d, n: calls.append((d, n)))
+    assert result.converged
+    done, total = calls[-1]
+    assert done == total
+    # and it did stop early: fewer reports than the total
+    assert len(calls) <= total
+
+
 def test_huber_resists_outlier_vertices() -> None:
     problem, truth = synthetic_problem(2000, seed=2, noise=0.01, outlier_fraction=0.1)
     plain = solve_lighting(problem, SolveOptions(huber_delta=None, reweight_c=None))

@@ -777,6 +777,9 @@ def _solve_alternating(
             converged = True
             break
         obj = new
+    if progress is not None and converged:
+        # Converged early: the bar says done, not "19 of 30".
+        progress("invert solve", options.max_iterations, options.max_iterations)
     return it, converged, history
 
 
@@ -1071,6 +1074,9 @@ def _solve_joint_irls(
             converged = True
             break
         obj = new
+    if progress is not None:
+        # Converged (or the last round): the bar says done, not "19 of 30".
+        progress("invert solve", rounds, rounds)
     return evaluations, converged, history
 
 
