@@ -131,6 +131,29 @@ def fill_unknown_albedo(albedo: np.ndarray, faces: np.ndarray, known: np.ndarray
     return harmonic_fill(start, known, np.stack([edges.row, edges.col], axis=1))
 
 
+def surroundings_emitter(record: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The constant environment that stands for what the scan does not hold
+    (``scene.json`` ``surroundings``, :mod:`reroom.invert.surroundings`), or None.
+
+    Only rays that leave the mesh through a hole see it; a closed room never does. Its
+    share of next-event samples is the escaping share of the hemisphere, so that a room
+    with few holes spends few shadow rays on it.
+    """
+    if not record or record.get("radiance") is None:
+        return None
+    rgb = np.asarray(record["radiance"], float)
+    if rgb.shape != (3,) or not np.all(np.isfinite(rgb)) or np.any(rgb < 0) or not rgb.any():
+        return None
+    share = float(record.get("escape_fraction", 0.0))
+    return {
+        "type": "constant",
+        "radiance": {"type": "rgb", "value": rgb.tolist()},
+        # sampling_weight is relative to the lights' (their solved powers); a room of a few
+        # square metres of holes sends about pi L A, A ~ share x 50 m^2 of walls.
+        "sampling_weight": float(max(np.pi * rgb.mean() * 50.0 * share, 1e-6)),
+    }
+
+
 def model_scene(
     scan_dir: str | Path,
     invert_dir: str | Path | None = None,
@@ -288,6 +311,9 @@ def model_scene(
         n_lights += 1
     if n_lights == 0:
         raise ReroomError(f"{scene_path}: the model has no light to render")
+    surroundings = surroundings_emitter(model.get("surroundings"))
+    if surroundings is not None:
+        scene["surroundings"] = surroundings
 
     keep = ~emitting
     if "light" in attrs:

@@ -884,6 +884,9 @@ def write_outputs(
         "pictures": pics,
         "warnings": result.warnings,
     }
+    if getattr(result, "surroundings", None):
+        # reroom.invert.surroundings: the light of what the scan does not hold
+        scene["surroundings"] = result.surroundings
     if getattr(result, "textures", None):
         from reroom.invert.textures import write_textures
 

@@ -47,6 +47,7 @@ from reroom.invert.solve import (
     solve_lighting,
 )
 from reroom.invert.subsample import spread_transfer, voxel_receivers
+from reroom.invert.surroundings import unseen_surroundings
 from reroom.invert.transfer import hemisphere_transfer, inset_points
 from reroom.invert.windows import WindowOpening
 from reroom.io.mesh import read_ply
@@ -128,6 +129,15 @@ class InvertOptions:
         Photo pixels that fit takes per light at most, spread evenly over the bins
         (:func:`reroom.invert.photo_profiles.even_subset`): on the 300-frame 640x360
         scan the downlight had 591k pixels and the fit took 200 s of the 5-minute run.
+    surroundings : bool
+        Measure how much of the receivers' hemisphere leaves the mesh through holes, and
+        the radiance eq. 5.9 gave those directions (:mod:`reroom.invert.surroundings`;
+        ``scene.json`` ``surroundings``). Where that share is at least
+        ``surroundings_min_escape`` the renders add a constant environment of that
+        radiance, so that a scan that does not close (slambook2's unseen ceiling) renders
+        with the light the solve assumed instead of losing it through the holes.
+    surroundings_min_escape : float
+        The escaping share below which a mesh counts as closed (nothing rendered).
     line_phi_bins : int
         ``phi`` bins of line lights (angle out of the plane perpendicular to the line,
         :class:`~reroom.invert.basis.LineBasis`): the profile is ``i(theta, phi)
@@ -378,6 +388,8 @@ class InvertOptions:
     window_view_height: int = 384
     point_photo_clusters: str = "wall,ceiling,floor"
     point_photo_samples: int = 60_000
+    surroundings: bool = True
+    surroundings_min_escape: float = 0.01
     line_phi_bins: int = 3
     line_phi_fold: bool = True
     line_phi_smooth: float = 1e5
@@ -473,6 +485,7 @@ class InvertResult:
     problem_vertices: np.ndarray | None = None
     textures: list | None = None
     render_windows: dict = field(default_factory=dict)
+    surroundings: dict | None = None
 
 
 def _require(path: Path, what: str) -> Path:
@@ -995,6 +1008,10 @@ def run_invert(
     _photo_clusters(options)  # a misspelt cluster fails here, not after the solve
     if options.point_photo_samples < 100:
         raise ValueError(f"point_photo_samples must be >= 100, got {options.point_photo_samples}")
+    if not 0 <= options.surroundings_min_escape <= 1:
+        raise ValueError(
+            f"surroundings_min_escape must be in [0, 1], got {options.surroundings_min_escape}"
+        )
     if options.window_view_height < 0:
         raise ValueError(f"window_view_height must be >= 0, got {options.window_view_height}")
     if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
@@ -1104,6 +1121,18 @@ def run_invert(
     )
     if len(sub) != len(receivers):
         hemi = spread_transfer(hemi, pts, normals, receivers)
+    surroundings = None
+    if options.surroundings:
+        surroundings = unseen_surroundings(
+            caster, mesh, openings, hemi, min_escape=options.surroundings_min_escape,
+            seed=options.seed + 11,
+        )  # fmt: skip
+        if surroundings["radiance"] is not None:
+            notes.append(
+                f"{surroundings['escape_fraction']:.1%} of the receivers' hemisphere leaves the "
+                "mesh through holes: rendered as surroundings of the radiance eq. 5.9 gave it "
+                f"({', '.join(f'{x:.3g}' for x in surroundings['radiance'])})"
+            )
     timings["hemisphere_transfer"] = time.perf_counter() - t - timings.get("unobserved_fill", 0.0)
 
     t = time.perf_counter()
@@ -1491,6 +1520,7 @@ def run_invert(
         problem_vertices=receivers[rows],
         textures=textures,
         render_windows=render_windows,
+        surroundings=surroundings,
     )
     meta = {
         "scan": str(scan),
