@@ -773,3 +773,24 @@ def test_inset_points_move_border_vertices_inwards_only():
     assert np.all((moved[:, :2] >= -1e-12) & (moved[:, :2] <= 1 + 1e-12))
     assert np.all(moved[border & (gx.ravel() == 0), 0] > 0)
     np.testing.assert_allclose(inset_points(mesh, idx, normals, inset=0.0), verts)
+
+
+def test_point_geometry_without_occlusion_is_the_unshadowed_bound():
+    """``occlusion=False`` (the photo fit's cheap first pass) differs from the shadowed
+    geometry exactly where a blocker hides the light, and there it is the larger."""
+    from reroom.invert.direct import _point_geometry
+
+    plane = grid_plane(2.0, 0.1)
+    blocker = trimesh.creation.box(extents=(0.4, 0.4, 0.05))
+    blocker.apply_translation([0.0, 0.0, 1.0])
+    caster = RayCaster(trimesh.util.concatenate([plane, blocker]))
+    p = plane.vertices
+    n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    args = (caster, p, n, [0.0, 0.0, 2.0], [0.0, 0.0, 1.0], None, 0.0, 0.0)
+    shadowed, cos_s = _point_geometry(*args)
+    free, cos_f = _point_geometry(*args, occlusion=False)
+    np.testing.assert_array_equal(cos_s, cos_f)
+    hidden = shadowed == 0
+    assert 20 < hidden.sum() < len(p) // 2  # the blocker's shadow under the light
+    np.testing.assert_array_equal(shadowed[~hidden], free[~hidden])
+    assert np.all(free[hidden] > 0)

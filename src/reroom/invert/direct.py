@@ -206,9 +206,11 @@ def _point_geometry(
     offset: float | ArrayLike | None,
     clearance: float,
     fixture: float,
+    occlusion: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 5.10's geometry per point: ``V max(0, cos_r) / d^2`` (0 where occluded or
-    within ``fixture`` of the light) and ``cos theta`` of the emission direction."""
+    within ``fixture`` of the light) and ``cos theta`` of the emission direction.
+    ``occlusion=False``: ``V = 1`` everywhere (no shadow rays; an upper bound)."""
     p, n, starts = _points_normals(points, normals, offset, caster)
     pos = np.asarray(position, dtype=np.float64).reshape(3)
     ax = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -223,6 +225,8 @@ def _point_geometry(
     value[~np.isfinite(value)] = 0.0
     if fixture > 0:
         value[d <= fixture] = 0.0
+    if not occlusion:
+        return value, cos_theta
     lit = np.flatnonzero(value > 0)
     value[
         lit[~_unoccluded(caster, starts[lit], np.broadcast_to(pos, (len(lit), 3)), clearance)]

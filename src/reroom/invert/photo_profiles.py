@@ -74,12 +74,16 @@ class PhotoSamples:
     def __len__(self) -> int:
         return len(self.face)
 
-    def interpolate(self, faces: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """``values`` ``(V, ...)`` per mesh vertex read at each sample (barycentric; NaN
-        where a corner's value is NaN)."""
-        corners = np.asarray(faces, np.int64)[self.face]
+    def interpolate(
+        self, faces: np.ndarray, values: np.ndarray, rows: np.ndarray | None = None
+    ) -> np.ndarray:
+        """``values`` ``(V, ...)`` per mesh vertex read at each sample, or at the samples
+        ``rows`` only (barycentric; NaN where a corner's value is NaN)."""
+        face = self.face if rows is None else self.face[rows]
+        bary = self.barycentric if rows is None else self.barycentric[rows]
+        corners = np.asarray(faces, np.int64)[face]
         v = np.asarray(values, np.float64)[corners]
-        w = self.barycentric.reshape(len(self), 3, *([1] * (v.ndim - 2)))
+        w = bary.reshape(len(face), 3, *([1] * (v.ndim - 2)))
         return (v * w).sum(axis=1)
 
 
