@@ -131,6 +131,19 @@ def test_observed_texels_match_environment(window_scan):
     assert np.all(photos.bound[sat].max(axis=-1) >= 1.0 - 1e-6)
 
 
+def test_one_pass_bins_the_pixels_at_several_heights(window_scan):
+    """``also_heights`` gives the maps a separate call at that height gives, bit for bit."""
+    root, _ = window_scan
+    (coarse,), stats = observe_windows(root, _room(), [WINDOW], height=H, also_heights=(3 * H,))
+    (fine,) = stats["also"][3 * H]
+    (alone,), _ = observe_windows(root, _room(), [WINDOW], height=3 * H)
+    (again,), _ = observe_windows(root, _room(), [WINDOW], height=H)
+    for a, b in ((fine, alone), (coarse, again)):
+        for field in ("mean", "count", "bound", "saturated", "channel_mean"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert fine.height == 3 * H
+
+
 def test_refined_map_reproduces_observed_texels_and_keeps_cell_means(window_scan):
     root, env = window_scan
     basis = CubemapBasis(4)

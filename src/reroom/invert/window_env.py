@@ -294,6 +294,7 @@ def observe_windows(
     saturation_level: int = 255,
     erode: bool = True,
     caster=None,
+    also_heights: tuple[int, ...] = (),
 ) -> tuple[list[WindowPhotos], dict[str, Any]]:
     """Bin the photos' pixels seen through each window into a lat-long map per window.
 
@@ -317,12 +318,16 @@ def observe_windows(
         mix the window's rim with the outdoors).
     caster:
         A :class:`reroom.rays.RayCaster` on ``mesh`` (built if not given).
+    also_heights:
+        Further map heights to bin the same pixels into, from the same rays (one cast
+        and one read of each frame for all of them).
 
     Returns
     -------
     photos, stats
         One :class:`WindowPhotos` per opening, and counts (frames used, frames skipped
-        with the reason, samples, saturated samples) plus ``notes``.
+        with the reason, samples, saturated samples) plus ``notes``; with
+        ``also_heights``, ``stats["also"][h]`` holds the openings' maps at height ``h``.
 
     Frames whose image cannot be read are skipped with a warning naming the file;
     frames without an exposure (``scale`` null) are skipped silently (counted).
@@ -333,7 +338,8 @@ def observe_windows(
     notes: list[str] = []
     scan, scales, lut = open_photos(scan_dir, notes.append)
     caster = caster if caster is not None else RayCaster(mesh)
-    acc = [_Accumulator(height) for _ in openings]
+    heights = [int(height), *(int(h) for h in also_heights)]
+    accs = [[_Accumulator(h) for _ in openings] for h in heights]
     stats: dict[str, Any] = {
         "frames": len(scan.frames),
         "frames_used": 0,
@@ -377,12 +383,17 @@ def observe_windows(
         for w in range(len(openings)):
             sel = keep & (win == w)
             if sel.any():
-                acc[w].add(d[sel], values[sel], sat[sel], clipped[sel])
+                for acc in accs:
+                    acc[w].add(d[sel], values[sel], sat[sel], clipped[sel])
                 stats["samples"][w] += int(sel.sum())
                 stats["saturated"][w] += int(sat[sel].sum())
         stats["frames_used"] += 1
     stats["notes"] = notes
-    return [a.result() for a in acc], stats
+    if also_heights:
+        stats["also"] = {
+            h: [a.result() for a in acc] for h, acc in zip(heights[1:], accs[1:], strict=True)
+        }
+    return [a.result() for a in accs[0]], stats
 
 
 def refine_cells(
@@ -846,9 +857,12 @@ def photo_environments(
     camera looking through it is shown (:func:`view_map`, at that many rows; the photos
     binned again at that resolution), and ``view`` its counts.
     """
+    also = (int(view_height),) if view_height > 0 else ()
     photos, stats = observe_windows(
-        scan_dir, mesh, [w for w, _ in windows], height=height, caster=caster, **observe
-    )
+        scan_dir, mesh, [w for w, _ in windows], height=height, caster=caster,
+        also_heights=also, **observe,
+    )  # fmt: skip
+    fine_photos = stats.pop("also", {}).get(int(view_height))
     bases = list(basis) if isinstance(basis, list | tuple) else [basis] * len(windows)
     if len(bases) != len(windows):
         raise ValueError(f"{len(bases)} bases for {len(windows)} windows")
@@ -859,11 +873,9 @@ def photo_environments(
         info["saturated"] = stats["saturated"][k]
         maps.append(env)
         infos.append(info)
-    if view_height > 0:
-        fine, _ = observe_windows(
-            scan_dir, mesh, [w for w, _ in windows], height=view_height, caster=caster, **observe
-        )
-        for k, ph in enumerate(fine):
+    if fine_photos is not None:
+        # The same pixels binned at the view's resolution in the same pass.
+        for k, ph in enumerate(fine_photos):
             # Two passes: a frame's pixels land a texel or two apart at this resolution.
             ph = fill_gaps(fill_gaps(ph)) if fill else ph
             view, vinfo = view_map(ph, maps[k])
