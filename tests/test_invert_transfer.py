@@ -323,13 +323,20 @@ def test_line_light_matches_quadrature_and_bins():
     assert errors[0] > errors[1] > errors[2] and errors[2] < 1e-3
 
 
-def test_line_light_shadow_converges_with_segments():
+def _floor_under_blocker(extents, centre):
+    """A 2 m floor grid under a box blocker: its caster, the floor's vertices and normals."""
     plane = grid_plane(2.0, 0.1)
-    blocker = trimesh.creation.box(extents=(0.3, 3.0, 0.05))
-    blocker.apply_translation([0.25, 0.0, 1.2])  # hides part of the line from part of the floor
+    blocker = trimesh.creation.box(extents=extents)
+    blocker.apply_translation(centre)
     caster = RayCaster(trimesh.util.concatenate([plane, blocker]))
     p = plane.vertices
-    n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    return caster, p, np.tile([0.0, 0.0, 1.0], (len(p), 1))
+
+
+def test_line_light_shadow_converges_with_segments():
+    # the blocker hides part of the line from part of the floor
+    caster, p, n = _floor_under_blocker((0.3, 3.0, 0.05), [0.25, 0.0, 1.2])
+    plane = grid_plane(2.0, 0.1)
     p0, p1, basis = np.array([-0.8, 0.0, 2.0]), np.array([0.8, 0.0, 2.0]), InclinationBasis(8)
     ref = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], basis, 2048).sum(1)
     free = line_light_transfer(RayCaster(plane), p, n, p0, p1, [0, 0, 1], basis, 4).sum(1)
@@ -399,12 +406,7 @@ def test_line_light_phi_bins_match_quadrature(fold):
 
 
 def test_line_light_phi_bins_share_the_shadow_rays():
-    plane = grid_plane(2.0, 0.1)
-    blocker = trimesh.creation.box(extents=(0.3, 3.0, 0.05))
-    blocker.apply_translation([0.25, 0.0, 1.2])
-    caster = RayCaster(trimesh.util.concatenate([plane, blocker]))
-    p = plane.vertices
-    n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    caster, p, n = _floor_under_blocker((0.3, 3.0, 0.05), [0.25, 0.0, 1.2])
     p0, p1 = np.array([-0.8, 0.0, 2.0]), np.array([0.8, 0.0, 2.0])
     one = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], InclinationBasis(8), 16)
     two = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], LineBasis(8, 4), 16)
@@ -780,12 +782,7 @@ def test_point_geometry_without_occlusion_is_the_unshadowed_bound():
     geometry exactly where a blocker hides the light, and there it is the larger."""
     from reroom.invert.direct import _point_geometry
 
-    plane = grid_plane(2.0, 0.1)
-    blocker = trimesh.creation.box(extents=(0.4, 0.4, 0.05))
-    blocker.apply_translation([0.0, 0.0, 1.0])
-    caster = RayCaster(trimesh.util.concatenate([plane, blocker]))
-    p = plane.vertices
-    n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    caster, p, n = _floor_under_blocker((0.4, 0.4, 0.05), [0.0, 0.0, 1.0])
     args = (caster, p, n, [0.0, 0.0, 2.0], [0.0, 0.0, 1.0], None, 0.0, 0.0)
     shadowed, cos_s = _point_geometry(*args)
     free, cos_f = _point_geometry(*args, occlusion=False)
