@@ -407,6 +407,7 @@ def test_line_light_phi_bins_match_quadrature(fold):
 
 def test_line_light_phi_bins_share_the_shadow_rays():
     caster, p, n = _floor_under_blocker((0.3, 3.0, 0.05), [0.25, 0.0, 1.2])
+    plane = grid_plane(2.0, 0.1)
     p0, p1 = np.array([-0.8, 0.0, 2.0]), np.array([0.8, 0.0, 2.0])
     one = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], InclinationBasis(8), 16)
     two = line_light_transfer(caster, p, n, p0, p1, [0, 0, 1], LineBasis(8, 4), 16)
