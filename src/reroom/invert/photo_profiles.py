@@ -40,10 +40,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import lsq_linear
 
 from reroom.errors import ReroomError
-from reroom.invert.solve import _box_qp
+from reroom.invert.solve import bounded_quadratic
 
 __all__ = ["PhotoSamples", "ProfileRefit", "even_subset", "photo_samples", "refit_point_profile"]
 
@@ -352,11 +351,9 @@ def refit_point_profile(
         # 300-frame scan's 60k pixels.
         gram = (big.T @ big).toarray()
         grad = -np.asarray(big.T @ rhs).ravel()
-        lo, hi = np.zeros(bins), np.full(bins, np.inf)
-        x = _box_qp(gram, grad, lo, hi)
-        if x is None:  # pragma: no cover - block pivoting converges for these
-            r = np.linalg.cholesky(gram).T
-            x = lsq_linear(r, np.linalg.solve(r.T, -grad), bounds=(0.0, np.inf), method="bvls").x
+        x = bounded_quadratic(gram, grad, np.zeros(bins), np.full(bins, np.inf))
+        if x is None:  # pragma: no cover - the prior keeps the matrix positive definite
+            raise ReroomError("photo profile fit: its normal matrix is not positive definite")
         return x
 
     def residual(p: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -71,6 +71,7 @@ __all__ = [
     "LightBlock",
     "SolveOptions",
     "SolveResult",
+    "bounded_quadratic",
     "footprint_operator",
     "indirect_weights",
     "model_irradiance",
@@ -802,6 +803,23 @@ def _color_of(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return col, d_t, d_p
 
 
+def bounded_quadratic(
+    h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> np.ndarray | None:
+    """``argmin 1/2 s^T h s + g^T s`` over ``lo <= s <= hi``: block principal pivoting
+    (:func:`_box_qp`), and BVLS on the Cholesky factor of ``h`` where that does not
+    converge. None when ``h`` is not positive definite."""
+    step = _box_qp(h, g, lo, hi)
+    if step is not None:
+        return step
+    try:
+        rf = scipy.linalg.cholesky(h, lower=False)
+    except np.linalg.LinAlgError:
+        return None
+    b = -scipy.linalg.solve_triangular(rf, g, trans="T", lower=False)
+    return scipy.optimize.lsq_linear(rf, b, bounds=(lo, hi), method="bvls").x
+
+
 def _box_qp(
     h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int | None = None
 ) -> np.ndarray | None:
@@ -891,15 +909,10 @@ def _bounded_lm(
         accepted = False
         while mu < 1e12:
             h = a + mu * np.diag(d)
-            step = _box_qp(h, g, lo - x, hi - x)
-            if step is None:  # not positive definite, or no convergence: BVLS
-                try:
-                    rf = scipy.linalg.cholesky(h, lower=False)
-                except np.linalg.LinAlgError:
-                    mu *= 10
-                    continue
-                b = -scipy.linalg.solve_triangular(rf, g, trans="T", lower=False)
-                step = scipy.optimize.lsq_linear(rf, b, bounds=(lo - x, hi - x), method="bvls").x
+            step = bounded_quadratic(h, g, lo - x, hi - x)
+            if step is None:  # not positive definite
+                mu *= 10
+                continue
             xn = np.clip(x + step, lo, hi)
             rn = fun(xn)
             nfev += 1

@@ -26,35 +26,10 @@ from typing import Any
 import numpy as np
 
 from reroom.invert.transfer import HemisphereTransfer
-from reroom.invert.windows import WindowOpening
+from reroom.invert.windows import WindowOpening, rays_through_windows
 from reroom.rays import sample_hemisphere
 
-__all__ = ["crosses_window", "unseen_surroundings"]
-
-
-def crosses_window(
-    origins: np.ndarray,
-    directions: np.ndarray,
-    openings: list[WindowOpening],
-    tolerance: float = 0.02,
-) -> np.ndarray:
-    """``(N,)`` True where a ray (from inside the room) crosses a window's rectangle,
-    grown by ``tolerance`` metres on each side."""
-    o = np.asarray(origins, np.float64)
-    d = np.asarray(directions, np.float64)
-    out = np.zeros(len(o), bool)
-    for w in openings:
-        n = w.normal / np.linalg.norm(w.normal)
-        den = d @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((w.centre - o) @ n) / den
-        ok = np.isfinite(t) & (t > 0)
-        p = o + np.where(ok, t, 0.0)[:, None] * d - w.centre
-        for half in (w.half_u, w.half_v):
-            length = float(np.linalg.norm(half))
-            ok &= np.abs(p @ (half / length)) <= length + tolerance
-        out |= ok
-    return out
+__all__ = ["unseen_surroundings"]
 
 
 def unseen_surroundings(
@@ -128,7 +103,10 @@ def unseen_surroundings(
     dirs = dirs.reshape(-1, 3)
     origins = np.repeat(points + max(1e-3, 10 * caster.eps) * n, rays, axis=0)
     hits = caster.intersect(origins, dirs, tmin=caster.eps)
-    escaped = ~np.asarray(hits.hit, bool) & ~crosses_window(origins, dirs, openings)
+    # A miss that crossed a window is the window's light (the hemisphere transfer's rule).
+    escaped = ~np.asarray(hits.hit, bool) & (
+        rays_through_windows(origins, dirs, hits.t, openings) < 0
+    )
     share = escaped.reshape(len(pick), rays).mean(axis=1)
     # Each receiver's mean observed radiance: E_ind = integral L cos dw over the
     # observed directions, and the cosine integral of the whole hemisphere is pi.
