@@ -93,6 +93,7 @@ def test_a_negative_number_of_splits_is_refused_before_any_work(tmp_path: Path) 
         {"point_photo_clusters": "wall,sofa"},
         {"point_photo_samples": 10},
         {"window_view_height": -1},
+        {"surroundings_min_escape": 1.5},
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             run_invert(tmp_path / "nothing_here", None, InvertOptions(**bad))

@@ -56,6 +56,14 @@ def test_an_open_top_room_escapes_by_reciprocity_and_a_closed_one_does_not() -> 
     assert info["radiance"] is None
 
 
+def test_receivers_that_saw_nothing_give_no_surroundings() -> None:
+    room = _room(open_top=True)
+    hemi = _hemi(room, np.ones(3))
+    hemi.p_observed[:] = 0.0  # no receiver saw anything: no radiance to give the holes
+    info = unseen_surroundings(RayCaster(room), room, [], hemi)
+    assert info["points"] == 0 and info["radiance"] is None
+
+
 def test_rays_through_a_window_are_not_an_escape() -> None:
     room = _room(open_top=True)
     # The whole missing ceiling declared a window: nothing escapes any more.
@@ -81,7 +89,9 @@ def test_a_miss_crosses_a_window_within_its_grown_rectangle() -> None:
 def test_surroundings_emitter_is_a_constant_environment_only_with_a_radiance() -> None:
     assert surroundings_emitter(None) is None
     assert surroundings_emitter({"escape_fraction": 0.0, "radiance": None}) is None
-    assert surroundings_emitter({"radiance": [float("nan"), 0, 0]}) is None
+    for bad in ([float("nan"), 0, 0], [0.1, -0.2, 0.3], [0.1, 0.2], "grey"):
+        with pytest.warns(UserWarning, match=r"my/scene\.json: surroundings radiance"):
+            assert surroundings_emitter({"radiance": bad}, "my/scene.json") is None
     assert surroundings_emitter({"radiance": [0.0, 0.0, 0.0]}) is None
     e = surroundings_emitter({"escape_fraction": 0.5, "radiance": [0.3, 0.2, 0.1]})
     assert e["type"] == "constant"

@@ -131,18 +131,32 @@ def fill_unknown_albedo(albedo: np.ndarray, faces: np.ndarray, known: np.ndarray
     return harmonic_fill(start, known, np.stack([edges.row, edges.col], axis=1))
 
 
-def surroundings_emitter(record: dict[str, Any] | None) -> dict[str, Any] | None:
+def surroundings_emitter(
+    record: dict[str, Any] | None, source: str | Path = "scene.json"
+) -> dict[str, Any] | None:
     """The constant environment that stands for what the scan does not hold
     (``scene.json`` ``surroundings``, :mod:`reroom.invert.surroundings`), or None.
 
     Only rays that leave the mesh through a hole see it; a closed room never does. Its
     share of next-event samples is the escaping share of the hemisphere, so that a room
-    with few holes spends few shadow rays on it.
+    with few holes spends few shadow rays on it. A radiance that is not three finite,
+    non-negative numbers (a hand-edited ``source``) is left out with a warning naming
+    the file.
     """
     if not record or record.get("radiance") is None:
         return None
-    rgb = np.asarray(record["radiance"], float)
-    if rgb.shape != (3,) or not np.all(np.isfinite(rgb)) or np.any(rgb < 0) or not rgb.any():
+    try:
+        rgb = np.asarray(record["radiance"], float)
+    except (TypeError, ValueError):
+        rgb = np.full(1, np.nan)
+    if rgb.shape != (3,) or not np.all(np.isfinite(rgb)) or np.any(rgb < 0):
+        warnings.warn(
+            f"{source}: surroundings radiance {record['radiance']!r} is not three finite, "
+            "non-negative numbers: rendered without the surroundings",
+            stacklevel=2,
+        )
+        return None
+    if not rgb.any():
         return None
     share = float(record.get("escape_fraction", 0.0))
     return {
@@ -311,7 +325,7 @@ def model_scene(
         n_lights += 1
     if n_lights == 0:
         raise ReroomError(f"{scene_path}: the model has no light to render")
-    surroundings = surroundings_emitter(model.get("surroundings"))
+    surroundings = surroundings_emitter(model.get("surroundings"), scene_path)
     if surroundings is not None:
         scene["surroundings"] = surroundings
 
