@@ -98,18 +98,30 @@ EDIT_SETS: dict[str, list[dict[str, Any]]] = {
 
 
 def edit_ops(edit: str, truth_lights: list[str]) -> list[dict[str, Any]]:
-    """The operations of edit set ``edit``: a name of :data:`EDIT_SETS`, or ``alone:NAME``.
+    """The operations of edit set ``edit``: a name of :data:`EDIT_SETS`, ``alone:NAME`` or
+    ``paint:TARGET:R/G/B``.
 
     ``alone:NAME`` (a diagnosis, not one of the issue's edits) switches off every true
     light but ``NAME``: that light's own light in the renders, indirect included, against
     the truth's; e.g. ``alone:ceiling_panel`` separates the panel from the lights that
-    stay on when it is switched off.
+    stay on when it is switched off. ``paint:TARGET:R/G/B`` (also a diagnosis) repaints a
+    cluster to any colour: ``paint:wall:0/0/0`` takes the light the walls pass on out of
+    both renders, so what is left on the floor is the light that reaches it otherwise.
     """
     if edit.startswith("alone:"):
         keep = edit.split(":", 1)[1]
         if keep not in truth_lights:
             raise SystemExit(f"--edits {edit}: no true light {keep!r} (lights: {truth_lights})")
         return [{"op": "light", "name": n, "off": True} for n in truth_lights if n != keep]
+    if edit.startswith("paint:"):
+        try:
+            _, target, rgb = edit.split(":")
+            color = [float(c) for c in rgb.split("/")]
+        except ValueError:
+            raise SystemExit(f"--edits {edit}: expected paint:TARGET:R/G/B") from None
+        if len(color) != 3:
+            raise SystemExit(f"--edits {edit}: expected three channels, got {len(color)}")
+        return [{"op": "repaint", "target": target, "color": color}]
     if edit not in EDIT_SETS:
         raise SystemExit(f"--edits: unknown edit set {edit!r} (sets: {', '.join(EDIT_SETS)})")
     return EDIT_SETS[edit]
@@ -123,6 +135,11 @@ def edit_ops(edit: str, truth_lights: list[str]) -> list[dict[str, Any]]:
 TARGET_RMSE = 0.10
 TARGET_SSIM = 0.90
 TARGETED = ("empty", "repaint_walls", "light_off", "light_moved", "window_sunset")
+
+
+def _file_name(edit: str) -> str:
+    """``edit`` as one path component (``paint:wall:0/0/0`` holds slashes)."""
+    return edit.replace("/", "_").replace(":", "_")
 
 
 def _model_light_position(light: dict[str, Any]) -> np.ndarray:
@@ -442,7 +459,10 @@ def main() -> None:
     ap.add_argument(
         "--edits",
         default=",".join(EDIT_SETS),
-        help="edit sets to run (names of EDIT_SETS, or alone:NAME: every true light but NAME off)",
+        help=(
+            "edit sets to run (names of EDIT_SETS; alone:NAME: every true light but NAME"
+            " off; paint:TARGET:R/G/B: a cluster repainted)"
+        ),
     )
     ap.add_argument("--model-max-depth", type=int, default=64)
     ap.add_argument(
@@ -604,8 +624,8 @@ def main() -> None:
 
         def render_ours(seed: int, folder: str, mops: list = mops, edit: str = edit) -> list:
             """Ours per view in image units (cached: same model, edits, spp, depth, seed)."""
-            dest = out / folder / edit
-            meta = dest / f"{edit}.json"
+            dest = out / folder / _file_name(edit)
+            meta = dest / f"{_file_name(edit)}.json"
             want = _key(
                 mops, args.spp, args.model_max_depth, seed, cams_json, frames, model_key,
                 args.denoise,
@@ -620,7 +640,7 @@ def main() -> None:
                     frames=frames,
                     cameras=cams_json,
                     spp=args.spp,
-                    name=edit,
+                    name=_file_name(edit),
                     work_dir=out / "ours_work",
                     max_depth=args.model_max_depth,
                     seed=seed,
@@ -693,7 +713,7 @@ def main() -> None:
                     row["light_share_truth"] = light_share(tru, t_ref, label)
                     row["light_share_ours"] = light_share(ours, o_ref, label)
             rows.append(row)
-            write_rgb8(strips / f"{edit}_{v['view']}.png", comparison_strip(ours, tru))
+            write_rgb8(strips / f"{_file_name(edit)}_{v['view']}.png", comparison_strip(ours, tru))
         for group in ("input", "new"):
             g = [r for r in rows if r["group"] == group]
             agg = {"edit": edit, "group": group, "views": [r["view"] for r in g]}
@@ -718,8 +738,10 @@ def main() -> None:
             print(_row(agg), flush=True)
         if args.docs_images is not None:
             pick = [views[0]["view"], next(v["view"] for v in views if v["group"] == "new")]
-            grid = np.concatenate([read_rgb8(strips / f"{edit}_{p}.png") for p in pick], axis=0)
-            write_rgb8(args.docs_images / f"fidelity_{edit}.png", grid)
+            grid = np.concatenate(
+                [read_rgb8(strips / f"{_file_name(edit)}_{p}.png") for p in pick], axis=0
+            )
+            write_rgb8(args.docs_images / f"fidelity_{_file_name(edit)}.png", grid)
         atomic_write_json(out / "fidelity.json", doc_out)  # after every edit: partial runs count
 
     print()

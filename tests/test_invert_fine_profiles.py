@@ -94,6 +94,8 @@ def test_a_negative_number_of_splits_is_refused_before_any_work(tmp_path: Path) 
         {"point_photo_samples": 10},
         {"window_view_height": -1},
         {"surroundings_min_escape": 1.5},
+        {"texture_smooth": -0.5},
+        {"texture_smooth": float("nan")},
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             run_invert(tmp_path / "nothing_here", None, InvertOptions(**bad))

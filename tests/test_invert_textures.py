@@ -19,6 +19,7 @@ from reroom.invert.textures import (
     write_textures,
 )
 from reroom.rays import RayCaster
+from reroom.render.camera import subpixel_positions
 from reroom.scan import Intrinsics, look_at, write_scan
 from reroom.scan.camera import Frame
 
@@ -89,10 +90,13 @@ def texture_scan(tmp_path_factory) -> tuple[Path, trimesh.Trimesh, np.ndarray]:
     scales = [1.0, 0.8, 1.2, 1.0]
     caster = RayCaster(mesh)
     images = []
+    # Each pixel the mean of 4 x 4 rays over its square, as a sensor integrates.
+    sub = subpixel_positions(0, intr.width, 0, intr.height, 4)
     for pose, s in zip(poses, scales, strict=True):
-        o, d = Frame(0, root / "x.png", pose, intr).pixel_rays()
+        o, d = Frame(0, root / "x.png", pose, intr).pixel_rays(sub)
         hits = caster.intersect(o, d, tmin=caster.eps)
-        linear = np.clip(_radiance(hits.points) * s, 0.0, 1.0)
+        radiance = _radiance(hits.points).reshape(intr.height * intr.width, 16).mean(axis=1)
+        linear = np.clip(radiance * s, 0.0, 1.0)
         code = np.round(255.0 * linear ** (1 / 2.2)).astype(np.uint8)
         images.append(np.repeat(code.reshape(intr.height, intr.width, 1), 3, axis=2))
     write_scan(root, mesh, intr, poses, images, meta={"reroom": {"response": "gamma2.2"}})
@@ -154,6 +158,41 @@ def test_textures_reproduce_the_photos_albedo(texture_scan):
     wall = by[("wall", 0, 4.0)]
     seen = wall.count > 0
     assert np.mean(np.abs(wall.albedo[seen] - WALL) < 0.03 * WALL) > 0.995
+
+
+def test_solved_texels_sharpen_the_edges_the_footprints_blur(texture_scan):
+    root, mesh, labels = texture_scan
+    irradiance = np.full((len(mesh.vertices), 3), np.pi)
+    errors, texels = {}, {}
+    for solve in (False, True):
+        textures, stats = photo_textures(
+            root, mesh, labels, np.eye(3), irradiance, deconvolve=solve
+        )
+        floor = next(t for t in textures if t.label == "floor")
+        h, w = floor.shape
+        cu = floor.origin[0] + (np.arange(w) + 0.5) * floor.texel
+        cv = floor.origin[1] + (np.arange(h) + 0.5) * floor.texel
+        uu, vv = np.meshgrid(cu, cv)
+        edge = (
+            np.minimum(
+                np.abs(uu / CELL - np.round(uu / CELL)), np.abs(vv / CELL - np.round(vv / CELL))
+            )
+            * CELL
+        )
+        ok = (floor.count > 0) & (uu > 0.1) & (uu < 3.9) & (vv > 0.1) & (vv < 2.9)
+        want = _floor_albedo(np.c_[uu.ravel(), vv.ravel()]).reshape(h, w)
+        err = np.abs(floor.albedo[..., 0] - want) / want
+        near, far = ok & (edge > 0.01) & (edge < 0.03), ok & (edge > 0.05)
+        errors[solve] = (np.median(err[near]), np.median(err[far]), np.percentile(err[far], 95))
+        texels[solve] = stats["texel"]
+        if solve:
+            assert stats["deconvolution"]["footprint"] > 1.0  # in texels
+    # Texels half the median footprint when solved.
+    assert texels[True] <= 0.5 * texels[False] + 1e-3
+    # 1-3 cm from a cell's edge the mean per texel mixes both cells; the solve does not.
+    assert errors[True][0] < 0.3 * errors[False][0]
+    # Away from the edges both are the checker (the solve a little noisier: 8-bit steps).
+    assert errors[True][1] < 0.01 and errors[True][2] < 0.05
 
 
 def test_local_mean_follows_the_per_vertex_albedo(texture_scan):

@@ -273,7 +273,18 @@ class InvertOptions:
         ``textures``, used by the renderer instead of the per-vertex albedo on those
         surfaces. Needs ``layout.json`` and ``hdr/exposures.json``.
     texel : float or None
-        Their texel size in metres (None: the median pixel footprint, 0.5-5 cm).
+        Their texel size in metres (None: the median pixel footprint, 0.5-5 cm, halved
+        with ``texture_solve``, at least 5 mm).
+    texture_solve : bool
+        Solve the texels as the least-squares answer to every photo pixel, each the
+        mean of the texture over its footprint (:mod:`reroom.invert.texture_solve`),
+        instead of averaging the pixels that fall in each texel, which blurs the
+        pattern by the photos' footprints and the texels (docs/invert.md).
+    texture_smooth : float
+        How far that solve's penalty on differences between neighbouring texels
+        spreads a texel's value, in the photos' median pixel footprints: higher keeps
+        more of the photos' noise out of flat surfaces, lower keeps more of a
+        pattern's contrast.
     texture_point_direct : bool
         The textures take the point lights' direct light at each photo sample, read
         between bins as the renderer reads the profile, and interpolate only the rest of
@@ -413,6 +424,8 @@ class InvertOptions:
     min_bin_support: float = 0.01
     textures: bool = True
     texel: float | None = None
+    texture_solve: bool = True
+    texture_smooth: float = 0.5
     texture_point_direct: bool = True
     window_photos: bool = True
     window_photo_prior: float = 0.0
@@ -1014,6 +1027,8 @@ def run_invert(
         )
     if options.window_view_height < 0:
         raise ValueError(f"window_view_height must be >= 0, got {options.window_view_height}")
+    if not (np.isfinite(options.texture_smooth) and options.texture_smooth >= 0):
+        raise ValueError(f"texture_smooth must be >= 0, got {options.texture_smooth}")
     if not (np.isfinite(options.window_smooth) and options.window_smooth >= 0):
         raise ValueError(f"window_smooth must be a finite number >= 0, got {options.window_smooth}")
     if options.render_window_cells < 0:
@@ -1686,6 +1701,8 @@ def _surface_textures(
             irradiance,
             albedo,
             texel=options.texel,
+            deconvolve=options.texture_solve,
+            deconvolve_smooth=options.texture_smooth,
             sharp_irradiance=None if sharp is None else point_direct,
             sharp_at_vertices=sharp,
             caster=caster,

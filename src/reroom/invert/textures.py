@@ -20,7 +20,11 @@ module turns them into textures on the layout's planes.
   irradiance at the hit (``E_ind + F . I`` of the receivers, interpolated over the hit
   triangle). That is eq. 5.6 solved per pixel instead of per vertex, so the texture
   and the per-vertex albedo agree where the surface is uniform and the texture keeps
-  what lies between the vertices. A texel's albedo is the mean of its samples.
+  what lies between the vertices. A texel's albedo is the least-squares answer to
+  every sample, each the mean of the texture over its pixel's footprint
+  (:mod:`reroom.invert.texture_solve`), on texels half the photos' footprint; or,
+  without ``deconvolve`` (or on texels coarser than the pixels), the mean of the
+  samples that fall in it, which blurs the pattern by the footprints and the texels.
 * Texels no photo saw take the nearest seen texel's albedo within ``fill_radius``
   texels, else the plane's median (the floor under a sofa: nothing tells its pattern).
   The sample count per texel is kept, so a reader knows which texels are measured.
@@ -28,7 +32,8 @@ module turns them into textures on the layout's planes.
 Where the solved lighting is wrong the texture is wrong in the same way as the
 per-vertex albedo (both divide the photos by the model's irradiance); what it adds is
 resolution. The texel size defaults to the median pixel footprint on the grouped
-surfaces (:func:`auto_texel`), clipped to 0.5-5 cm.
+surfaces (:func:`auto_texel`), clipped to 0.5-5 cm, halved (at least 5 mm) for the
+solved texels.
 """
 
 from __future__ import annotations
@@ -125,7 +130,8 @@ class SurfaceTexture:
         ``detail_sigma``): the pattern alone, 1 where unseen. The empty room multiplies
         it with the plane's mean albedo.
     count:
-        ``(H, W)`` photo samples per texel (0 where filled).
+        ``(H, W)`` photo samples per texel (0 where filled); with the solved texels
+        (``photo_textures``' ``deconvolve``), the samples' footprint weight on it.
     rotation:
         ``(3, 3)`` rotation from the mesh's frame to the aligned frame.
     name:
@@ -431,6 +437,8 @@ def _finish(
     calibrate_sigma: float,
     detail_sigma: float,
     fill_radius: int,
+    solved: np.ndarray | None = None,
+    coverage: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """``(albedo, detail)`` of one plane from its per-texel sums; None if nothing seen.
 
@@ -438,14 +446,23 @@ def _finish(
     skip (saturated ones: the brightest); the per-vertex albedo comes from the HDR
     mesh, which recovers those from the other frames' exposures. So the texture takes
     its local mean from the per-vertex albedo (where a texel has one) and only the
-    pattern within ``calibrate_sigma`` metres from the photos.
+    pattern within ``calibrate_sigma`` metres from the photos. The photos' albedo is
+    the samples' mean per texel, or ``solved`` (:func:`_solve_planes`) where the
+    footprints' ``coverage`` reaches :data:`MIN_COVERAGE`.
     """
-    seen = count > 0
+    if solved is None:
+        seen = count > 0
+    else:
+        seen = np.asarray(coverage) >= MIN_COVERAGE
     if not seen.any():
         return None
     photo = np.zeros(photo_sum.shape)
-    photo[seen] = photo_sum[seen] / count[seen][:, None]
-    has_vertex = seen & np.isfinite(vertex_sum).all(axis=-1)
+    if solved is None:
+        photo[seen] = photo_sum[seen] / count[seen][:, None]
+    else:
+        # A deconvolution rings a little beside sharp steps; albedo is not negative.
+        photo[seen] = np.maximum(solved[seen], 0.0)
+    has_vertex = (count > 0) & np.isfinite(vertex_sum).all(axis=-1)
     vertex = np.where(has_vertex[..., None], vertex_sum / np.maximum(count, 1)[..., None], 0.0)
     w = seen.astype(np.float64)
     sig = calibrate_sigma / texel
@@ -460,6 +477,58 @@ def _finish(
     detail = np.clip(np.where(seen[..., None], detail, 1.0), 0.25, 2.0)
     detail = _continue_pattern(detail, seen)
     return _fill(albedo, seen, fill_radius), detail
+
+
+#: A texel counts as seen when the samples' footprints put at least this many samples'
+#: worth of weight on it (a footprint's weights sum to 1).
+MIN_COVERAGE = 0.25
+
+
+def _solve_planes(
+    footprints: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+    shapes: list[tuple[int, int]],
+    stats: dict[str, Any],
+    smooth: float,
+    iterations: int,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Every plane's texels solved from the samples' footprints
+    (:func:`reroom.invert.texture_solve.solve_texels`), started from their back
+    projection; ``(None, None)`` where the median footprint is under a texel (an
+    explicit ``texel`` coarser than the photos' pixels), with the reason in ``stats``."""
+    import time
+
+    from reroom.invert.texture_solve import FootprintSamples, solve_texels
+
+    t0 = time.perf_counter()
+    plane = np.concatenate([f[0] for f in footprints])
+    centre = np.concatenate([f[1] for f in footprints])
+    # Samples in texel order (plane, row, column): the solve's gathers and scatters
+    # then walk the texels in order instead of frame after frame across the planes.
+    order = np.lexsort((centre[:, 0].astype(np.int32), centre[:, 1].astype(np.int32), plane))
+    samples = FootprintSamples(
+        plane=plane[order],
+        centre=centre[order],
+        jacobian=np.concatenate([f[2] for f in footprints])[order],
+        value=np.concatenate([f[3] for f in footprints])[order],
+    )
+    del plane, centre, order
+    jac = samples.jacobian
+    footprint = float(
+        np.sqrt(np.median(np.abs(jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0])))
+    )
+    if footprint < 1.0:
+        # Texels coarser than the pixels: each pixel is about a point on its texel, the
+        # footprints blur nothing to undo, and a bilinear fit through point samples of
+        # a sharp step rings. The samples' mean per texel is the texture.
+        stats["deconvolution"] = {"samples": len(samples), "skipped": round(footprint, 3)}
+        return None, None
+    solved, coverage, st = solve_texels(samples, shapes, smooth=smooth, iterations=iterations)
+    stats["deconvolution"] = {
+        "samples": len(samples),
+        **st,
+        "seconds": round(time.perf_counter() - t0, 2),
+    }
+    return solved, coverage
 
 
 def photo_textures(
@@ -482,6 +551,10 @@ def photo_textures(
     max_texels: int = 16_000_000,
     sharp_irradiance: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     sharp_at_vertices: np.ndarray | None = None,
+    deconvolve: bool = True,
+    texels_per_footprint: float = 0.5,
+    deconvolve_smooth: float = 0.5,
+    deconvolve_iterations: int = 30,
     caster=None,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[SurfaceTexture], dict[str, Any]]:
@@ -505,7 +578,8 @@ def photo_textures(
         ``[0, 0.95]`` as the renderer does; the texture's local mean follows it (see
         :func:`_finish`). None: the photos' own.
     texel:
-        Texel size (metres); None: :func:`auto_texel`.
+        Texel size (metres); None: :func:`auto_texel` (times ``texels_per_footprint``
+        with ``deconvolve``).
     max_rays_per_frame:
         Pixels are taken on a regular grid with at most this many per frame.
     min_cos:
@@ -538,6 +612,19 @@ def photo_textures(
         ``irradiance`` as before. Without them the whole irradiance is interpolated, and
         a beam's edge that falls between vertices is drawn into the albedo (a ghost of
         the light that stays when the light is moved or switched off).
+    deconvolve:
+        Solve each plane's texels as the least-squares answer to every sample, each the
+        mean of the texture over its pixel's footprint (:mod:`reroom.invert.texture_solve`),
+        instead of averaging the samples that fall in each texel (which blurs the
+        pattern by the footprints and the texels). A texel is then seen where the
+        footprints cover it (:data:`MIN_COVERAGE`), and ``count`` is that coverage.
+    texels_per_footprint:
+        With ``deconvolve`` and no ``texel``: the texel is this fraction of the
+        median footprint (at least 5 mm).
+    deconvolve_smooth, deconvolve_iterations:
+        How far the solve's penalty on neighbouring texels' differences spreads a
+        texel, in the photos' median footprints, and its most conjugate-gradient
+        steps.
     caster:
         A :class:`reroom.rays.RayCaster` on ``mesh`` (built if not given).
     progress:
@@ -610,7 +697,10 @@ def photo_textures(
     lut = scan_response(doc, scan.meta, notes.append)
     caster = caster if caster is not None else RayCaster(mesh)
     if texel is None:
+        # Solved texels can be finer than the photos' pixels (a footprint spans several).
         texel = auto_texel(scan, caster, face_plane)
+        if deconvolve:
+            texel = max(round(texel * texels_per_footprint, 4), 0.005)
     texel = float(texel)
     if not texel > 0:
         raise ValueError(f"texel must be positive, got {texel}")
@@ -638,7 +728,9 @@ def photo_textures(
 
     # Samples are binned a few million at a time: a bincount over every texel per frame
     # would cost more than the rays (300 frames x 4 M texels).
-    pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, Any]] = []
+    # Every sample's plane, texel position, footprint and albedo, for the solve.
+    footprints: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     n_pending = 0
     flush_at = 4_000_000
 
@@ -648,6 +740,7 @@ def photo_textures(
         flat = np.concatenate([x[0] for x in pending])
         alb = np.concatenate([x[1] for x in pending])
         va = np.concatenate([x[2] for x in pending])
+        footprints.extend(x[3] for x in pending if x[3] is not None)
         pending.clear()
         count[:] += np.bincount(flat, minlength=n_tex)
         for c in range(3):
@@ -702,6 +795,35 @@ def photo_textures(
                     same &= grid[1 + dy : h - 1 + dy, 1 + dx : w - 1 + dx] == core
         out[1:-1, 1:-1] = same
         return out.reshape(-1)
+
+    def _footprints(frame, ii: np.ndarray, jj: np.ndarray, a: np.ndarray, plane: np.ndarray):
+        """Samples' texel-centre positions and footprints (texels per pixel along the
+        image's x and y) on their planes; float32, with each sample's albedo added by
+        the caller."""
+        k = plane
+        iu, iv, ax = plane_iu[k], plane_iv[k], plane_axis[k]
+        n = np.arange(len(k))
+        centre = np.stack(
+            [
+                (a[n, iu] - plane_u0[k]) / texel - 0.5,
+                (a[n, iv] - plane_v0[k]) / texel - 0.5,
+            ],
+            axis=1,
+        )
+        jac = np.empty((len(k), 2, 2))
+        for col, (dx, dy) in enumerate(((1.0, 0.0), (0.0, 1.0))):
+            o, d = frame.pixel_rays(np.stack([jj + 0.5 + dx, ii + 0.5 + dy], axis=1))
+            oa, da = o @ rotation.T, d @ rotation.T
+            # The neighbouring pixel's ray met with the sample's own plane (through its
+            # hit, along the plane's axis): grazing pixels were dropped, so it meets it.
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (a[n, ax] - oa[n, ax]) / da[n, ax]
+            q = oa + t[:, None] * da
+            jac[:, 0, col] = (q[n, iu] - a[n, iu]) / texel
+            jac[:, 1, col] = (q[n, iv] - a[n, iv]) / texel
+        ok = np.isfinite(jac).all(axis=(1, 2))
+        jac[~ok] = 0.0  # a point sample where the neighbour misses the plane
+        return k.astype(np.int32), centre.astype(np.float32), jac.astype(np.float32)
 
     def frame_samples(j: int):
         """One frame's ``(flat texel, albedo, vertex albedo)`` and counts, or a skip reason."""
@@ -768,6 +890,12 @@ def photo_textures(
         rows = rows[: len(f)]
         radiance = linearize(codes, lut).astype(np.float64) / scale
         albedo = np.pi * radiance / e
+        foot = None
+        if deconvolve:
+            foot = (
+                *_footprints(frame, ii[idx][keep], jj[idx][keep], a, plane),
+                albedo.astype(np.float32),
+            )
         if vertex_albedo is not None:
             va = np.einsum("nk,nkc->nc", bary, vertex_albedo[faces[f]])
         else:
@@ -781,7 +909,7 @@ def photo_textures(
             0,
             plane_h[plane] - 1,
         )
-        return counts, (starts[plane] + row * w + col, albedo, va)
+        return counts, (starts[plane] + row * w + col, albedo, va, foot)
 
     from concurrent.futures import ThreadPoolExecutor
 
@@ -816,6 +944,12 @@ def photo_textures(
     flush()
     if progress is not None:
         progress(len(scan.frames), len(scan.frames))
+    solved = coverage = None
+    if deconvolve and footprints:
+        solved, coverage = _solve_planes(
+            footprints, shapes, stats, deconvolve_smooth, deconvolve_iterations
+        )
+        footprints.clear()
 
     textures: list[SurfaceTexture] = []
     per_label: dict[str, int] = {}
@@ -831,7 +965,11 @@ def photo_textures(
             calibrate_sigma,
             detail_sigma,
             fill_radius,
+            None if solved is None else solved[sl].reshape(h, w, 3),
+            None if coverage is None else coverage[sl].reshape(h, w),
         )
+        if coverage is not None:
+            cnt = np.where(coverage[sl] >= MIN_COVERAGE, coverage[sl], 0.0).reshape(h, w)
         entry = {
             "label": plane["label"],
             "axis": plane["axis"],
