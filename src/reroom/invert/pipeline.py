@@ -425,7 +425,7 @@ class InvertOptions:
     textures: bool = True
     texel: float | None = None
     texture_solve: bool = True
-    texture_smooth: float = 0.5
+    texture_smooth: float = 1.0
     texture_point_direct: bool = True
     window_photos: bool = True
     window_photo_prior: float = 0.0

@@ -553,8 +553,8 @@ def photo_textures(
     sharp_at_vertices: np.ndarray | None = None,
     deconvolve: bool = True,
     texels_per_footprint: float = 0.5,
-    deconvolve_smooth: float = 0.5,
-    deconvolve_iterations: int = 30,
+    deconvolve_smooth: float = 1.0,
+    deconvolve_iterations: int = 15,
     caster=None,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[SurfaceTexture], dict[str, Any]]:
