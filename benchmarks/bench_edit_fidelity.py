@@ -51,7 +51,9 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
   depth or normal edge of the scan mesh, the RMSE without those pixels, and the rest's
   shares by surface (wall, floor, ceiling, other; :func:`error_breakdown`), and the ratio
   of means per surface there (the surface as the scan mesh labels it: after ``empty``, what
-  was furniture counts as "other").
+  was furniture counts as "other"), and each surface's pattern slope: the least-squares
+  slope of ours' luminance over its 5x5 local mean on the truth's (1: the truth's
+  contrast, as a plank floor's; 0: flat; docs/benchmarks.md, session 40).
 
 ``--window-maps-from OTHER_RUN`` renders a composite: SCAN's model with each window's map
 (``invert/window_<name>.exr``) taken from another run of the same scan, e.g. one solved
@@ -342,11 +344,19 @@ def error_breakdown(
         out[f"{name}_ratio_of_means"] = (
             (ours[m].sum(axis=0) / t).tolist() if m.any() and np.all(t > 0) else None
         )
+    # A surface's pattern, apart from its level: luminance over its 5x5 local mean (the
+    # photo textures' contrast; 1 when ours has the truth's, 0 when ours is flat).
+    hp_t = lt - ndimage.uniform_filter(lt, 5, mode="nearest")
+    hp_o = lo - ndimage.uniform_filter(lo, 5, mode="nearest")
     for k, name in {**SURFACES, 255: "other"}.items():
         on = off & (label == k)
         out[f"{name}_error_share_off_edges"] = float(se[on].sum() / total)
         t = float(tru[on].sum())
         out[f"{name}_ratio_of_means_off_edges"] = float(ours[on].sum() / t) if t > 0 else None
+        den = float(hp_t[on] @ hp_t[on])
+        out[f"{name}_pattern_slope_off_edges"] = (
+            float(hp_o[on] @ hp_t[on]) / den if on.sum() >= 50 and den > 0 else None
+        )
     return out
 
 
@@ -751,8 +761,9 @@ def main() -> None:
     print("\nWhere the squared HDR error is, per view (near an edge: within 1 px of a depth")
     print("jump or a normal turn; the rest by surface):\n")
     print("| edit | view | RMSE | pixels near edges | their error share | RMSE off edges | wall "
-          "| floor | ceiling | other | ratio of means off edges: wall / floor / ceiling |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+          "| floor | ceiling | other | ratio of means off edges: wall / floor / ceiling "
+          "| pattern slope off edges: wall / floor / ceiling |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     for r in results:
         for q in r["per_view"]:
             print(f"| {r['edit']} | {q['view']} | {_pc(q['rel_rmse'])} | {_pc(q['edge_pixel_share'])} "
@@ -760,6 +771,8 @@ def main() -> None:
                   + " | ".join(_pc(q[f"{n}_error_share_off_edges"])
                                for n in ("wall", "floor", "ceiling", "other")) + " | "
                   + " / ".join(_f3(q.get(f"{n}_ratio_of_means_off_edges"))
+                               for n in ("wall", "floor", "ceiling")) + " | "
+                  + " / ".join(_f3(q.get(f"{n}_pattern_slope_off_edges"))
                                for n in ("wall", "floor", "ceiling")) + " |")  # fmt: skip
     print("\nThe view out through the windows, the brightest other pixels (the top")
     print(

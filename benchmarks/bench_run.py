@@ -76,8 +76,12 @@ def main() -> None:
         print(f"| {st.get('name')} | {st.get('status')} | {st.get('seconds', 0):.1f} |")
     report = args.out / "invert" / "report.json"
     if report.is_file():  # the inverse rendering's own steps (InvertResult.timings)
-        steps = json.loads(report.read_text()).get("timings_s", {})
+        doc = json.loads(report.read_text())
+        steps = doc.get("timings_s", {})
         print("invert steps (s): " + ", ".join(f"{k} {v:.1f}" for k, v in steps.items()))
+        tex = doc.get("textures") or {}
+        if tex.get("deconvolution"):  # the photo textures' solve (texture_solve.py)
+            print(f"textures: texel {tex.get('texel')} m, solve {tex['deconvolution']}")
     wall2, cpu2 = _timed([reroom, "run", str(scan), "--out", str(args.out)])
     print(f"resumed `reroom run` (nothing changed): {wall2:.1f} s wall, {cpu2:.1f} s CPU")
     evaluate(scan, args.out / "invert")

@@ -166,3 +166,25 @@ def test_the_preconditioner_reaches_the_same_answer_in_fewer_steps():
         full, _, _ = solve_texels(samples, [(H, W)], iterations=400, tol=1e-9, precondition=pc)
         np.testing.assert_allclose(full, answer, atol=1e-6)
     assert residual[True] < 0.5 * residual[False]
+
+
+def test_a_texel_only_a_wide_footprint_reaches_stays_finite():
+    """The anti-ringing clamp's range is empty where no sample centre lies within a
+    median footprint; such a texel (under the edge of a grazing pixel's footprint) keeps
+    its solved value instead of an infinite bound."""
+    rng = np.random.default_rng(7)
+    near = _geometry(4000, rng)
+    keep = near.centre[:, 0] < W / 3
+    wide = np.array([[[6.0, 0.0], [0.0, 6.0]]])
+    samples = _observe(
+        _pattern(rng),
+        FootprintSamples(
+            np.zeros(keep.sum() + 1, np.int64),
+            np.vstack([near.centre[keep], [[W - 8.0, H / 2]]]),
+            np.concatenate([near.jacobian[keep], wide]),
+            np.zeros((keep.sum() + 1, 3)),
+        ),
+    )
+    x, coverage, _ = solve_texels(samples, [(H, W)])
+    assert np.isfinite(x).all()
+    assert np.any(coverage[(coverage > 0)] < 0.1)

@@ -29,7 +29,13 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-__all__ = ["FootprintSamples", "back_projection", "sample_range", "solve_texels"]
+__all__ = [
+    "FootprintSamples",
+    "back_projection",
+    "median_footprint",
+    "sample_range",
+    "solve_texels",
+]
 
 #: Sub-sample offsets within a pixel (midpoint rule of a box over 2 x 2 cells).
 _Q = (-0.25, 0.25)
@@ -129,9 +135,11 @@ def _forward(tex, plane, centre, jac, starts, widths, heights, out):
 @nb.njit(cache=True, parallel=True)
 def _adjoint(res, plane, centre, jac, starts, widths, heights, n_tex, n_chunks, mode):
     """The transpose of :func:`_forward` applied to ``res`` (``(N, 3)``): each sample's
-    value spread back over its footprint's taps (``mode`` 0). ``mode`` 1 and 2 ignore
-    ``res`` and sum the taps' weights (each texel's coverage, in samples) into column
-    0 and their squares (the normal matrix's diagonal) into column 1. Chunks of
+    value spread back over its footprint's taps (``mode`` 0). Any other ``mode``
+    ignores ``res`` and sums the taps' weights (each texel's coverage, in samples) into
+    column 0 and their squares into column 1: the normal matrix's diagonal, but for
+    the cross terms of a sample's taps that land on the same texel (a little under
+    it; it scales the penalty and the preconditioner, which need no more). Chunks of
     samples scatter into their own buffers (no races)."""
     n = plane.shape[0]
     buf = np.zeros((n_chunks, n_tex, 3))
@@ -289,15 +297,22 @@ def back_projection(samples: FootprintSamples, shapes: list[tuple[int, int]]) ->
     """``(n_texels, 3)``: each texel's mean of the samples whose footprints reach it,
     weighted by their footprint weight on it; a texel none reaches takes the value of
     the nearest that one does on its plane (0 on a plane none reaches)."""
-    from scipy import ndimage
-
     geo, n_tex = _grid(samples, shapes)
-    starts = geo[3]
     y = np.ascontiguousarray(samples.value, np.float64)
     chunks = max(1, nb.get_num_threads())
     num = _adjoint(y, *geo, n_tex, chunks, 0)
     weight = _adjoint(y, *geo, n_tex, chunks, 1)[:, 0]
-    out = np.zeros((n_tex, 3))
+    return _weighted_mean(num, weight, geo[3], shapes)
+
+
+def _weighted_mean(
+    num: np.ndarray, weight: np.ndarray, starts: np.ndarray, shapes: list[tuple[int, int]]
+) -> np.ndarray:
+    """:func:`back_projection` from the adjoint of the samples (``num``) and the
+    texels' coverage (``weight``)."""
+    from scipy import ndimage
+
+    out = np.zeros((len(weight), 3))
     for p, (h, w) in enumerate(shapes):
         sl = slice(starts[p], starts[p + 1])
         wt = weight[sl].reshape(h, w)
@@ -312,21 +327,26 @@ def back_projection(samples: FootprintSamples, shapes: list[tuple[int, int]]) ->
     return out
 
 
+def median_footprint(jacobian: np.ndarray) -> float:
+    """The samples' median footprint in texels: the square root of the median area of
+    the parallelograms ``jacobian`` (``(N, 2, 2)``, texels per pixel) spans; 0 for none."""
+    jac = np.asarray(jacobian, np.float64)
+    if len(jac) == 0:
+        return 0.0
+    area = np.abs(jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0])
+    return float(np.sqrt(np.median(area)))
+
+
 def _neighbour_count(shapes: list[tuple[int, int]]) -> np.ndarray:
     """``(n_texels,)`` each texel's number of 4-neighbours on its plane (the diagonal of
     :func:`_laplacian`)."""
-    out = []
+    out = [np.zeros(0)]
     for h, w in shapes:
-        cols = np.full(w, 2.0)
-        rows = np.full(h, 2.0)
-        cols[[0, -1]] -= 1.0
-        rows[[0, -1]] -= 1.0
-        if w == 1:
-            cols[:] = 0.0
-        if h == 1:
-            rows[:] = 0.0
+        c, r = np.arange(w), np.arange(h)
+        cols = (c > 0).astype(float) + (c < w - 1)
+        rows = (r > 0).astype(float) + (r < h - 1)
         out.append((rows[:, None] + cols[None, :]).reshape(-1))
-    return np.concatenate(out) if out else np.zeros(0)
+    return np.concatenate(out)
 
 
 def solve_texels(
@@ -381,12 +401,11 @@ def solve_texels(
         the relative residual.
     """
     geo, n_tex = _grid(samples, shapes)
-    plane, _, jac, starts, widths, heights = geo
-    if initial is None:
-        initial = back_projection(samples, shapes)
-    initial = np.asarray(initial, np.float64)
-    if initial.shape != (n_tex, 3):
-        raise ValueError(f"initial has shape {initial.shape}, expected ({n_tex}, 3)")
+    plane, _, _, starts, widths, heights = geo
+    if initial is not None:
+        initial = np.asarray(initial, np.float64)
+        if initial.shape != (n_tex, 3):
+            raise ValueError(f"initial has shape {initial.shape}, expected ({n_tex}, 3)")
     y = np.ascontiguousarray(samples.value, np.float64)
     chunks = max(1, nb.get_num_threads())
 
@@ -401,6 +420,8 @@ def solve_texels(
     weights = _adjoint(y, *geo, n_tex, chunks, 1)
     coverage, diag = weights[:, 0], weights[:, 1]
     reached = diag > 0
+    if initial is None:
+        initial = _weighted_mean(adj(y), coverage, starts, shapes)
     stats: dict[str, float] = {
         "iterations": 0,
         "lam": 0.0,
@@ -409,8 +430,7 @@ def solve_texels(
     }
     if len(plane) == 0 or not reached.any():
         return initial.copy(), coverage, stats
-    area = np.abs(jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0])
-    footprint = float(np.sqrt(np.median(area)))
+    footprint = median_footprint(samples.jacobian)
     lam = (float(smooth) * footprint) ** 2 * float(np.median(diag[reached]))
     stats["footprint"] = footprint
     stats["lam"] = lam
@@ -457,6 +477,8 @@ def solve_texels(
     # A least-squares fit of a step rings beside it (a bilinear texture cannot put an
     # edge between texel centres): no texel leaves the range of the samples within a
     # footprint of it, the anti-ringing clamp of image resamplers.
+    # (A texel with no sample centre that near, reached only by a wide footprint's
+    # edge, is left as solved.)
     lo, hi = sample_range(samples, shapes, int(np.ceil(footprint)))
-    np.clip(x, lo, hi, out=x)
+    np.clip(x, np.where(np.isfinite(lo), lo, -np.inf), np.where(np.isfinite(hi), hi, np.inf), out=x)
     return x, coverage, stats

@@ -497,7 +497,7 @@ def _solve_planes(
     explicit ``texel`` coarser than the photos' pixels), with the reason in ``stats``."""
     import time
 
-    from reroom.invert.texture_solve import FootprintSamples, solve_texels
+    from reroom.invert.texture_solve import FootprintSamples, median_footprint, solve_texels
 
     t0 = time.perf_counter()
     plane = np.concatenate([f[0] for f in footprints])
@@ -512,10 +512,7 @@ def _solve_planes(
         value=np.concatenate([f[3] for f in footprints])[order],
     )
     del plane, centre, order
-    jac = samples.jacobian
-    footprint = float(
-        np.sqrt(np.median(np.abs(jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0])))
-    )
+    footprint = median_footprint(samples.jacobian)
     if footprint < 1.0:
         # Texels coarser than the pixels: each pixel is about a point on its texel, the
         # footprints blur nothing to undo, and a bilinear fit through point samples of
