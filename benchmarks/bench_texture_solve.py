@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_texture_solve.py RUN [--smooth 1] [--work /tmp/reroom_texture_solve]
+    python benchmarks/bench_texture_solve.py RUN [--smooth S] [--work /tmp/reroom_texture_solve]
 
 ``RUN`` is a finished ``reroom run`` folder. Its inputs are linked into ``WORK`` (as
 ``bench_invert_sweep.py`` does) and ``reroom invert`` runs there in this process with
@@ -14,6 +14,8 @@ the reference, and plain and Jacobi-preconditioned conjugate gradients stopped a
 to the reference over the seen texels (coverage >= ``MIN_COVERAGE``) relative to the
 reference's RMS, the 99th percentile of the absolute distance, and the wall time, with
 the ratio to 30 plain steps (the solve's first version; docs/benchmarks.md, session 40).
+The smoothness is the pipeline's own (one per plane, by its label; session 41) unless
+``--smooth`` gives one number for every plane.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from bench_invert_sweep import sweep_dir  # noqa: E402
 
 
 def pipeline_samples(run: Path, work: Path):
-    """The samples and plane shapes ``reroom invert`` solves on ``run``'s inputs."""
+    """The samples, plane shapes and per-plane smoothness ``reroom invert`` solves on
+    ``run``'s inputs."""
     import reroom.invert.texture_solve as texture_solve
     from reroom.invert.pipeline import InvertOptions, run_invert
 
@@ -40,6 +43,7 @@ def pipeline_samples(run: Path, work: Path):
 
     def capture(samples, shapes, *args, **kwargs):
         captured["samples"], captured["shapes"] = samples, list(shapes)
+        captured["smooth"] = kwargs.get("smooth", 1.0)
         return solve(samples, shapes, *args, **kwargs)
 
     texture_solve.solve_texels = capture  # textures.py imports it at call time
@@ -50,7 +54,7 @@ def pipeline_samples(run: Path, work: Path):
         texture_solve.solve_texels = solve
     if "samples" not in captured:
         raise SystemExit(f"{run}: the invert solved no texture (no textures, or texels too coarse)")
-    return captured["samples"], captured["shapes"]
+    return captured["samples"], captured["shapes"], captured["smooth"]
 
 
 def main() -> None:
@@ -59,18 +63,20 @@ def main() -> None:
     )
     ap.add_argument("run", type=Path)
     ap.add_argument("--work", type=Path, default=Path("/tmp/reroom_texture_solve"))
-    ap.add_argument("--smooth", type=float, default=1.0, help="the solve's smoothness")
+    ap.add_argument("--smooth", type=float, default=None, help="one smoothness for every plane")
     args = ap.parse_args()
 
     from reroom.invert.texture_solve import solve_texels
     from reroom.invert.textures import MIN_COVERAGE
 
-    samples, shapes = pipeline_samples(args.run, args.work)
+    samples, shapes, smooth = pipeline_samples(args.run, args.work)
+    if args.smooth is not None:
+        smooth = args.smooth
     n_tex = sum(h * w for h, w in shapes)
     print(f"{args.run}: {len(samples)} samples, {len(shapes)} planes, {n_tex} texels")
-    print(f"smoothness {args.smooth:g} footprints")
+    print(f"smoothness (footprints, per plane): {np.round(np.atleast_1d(smooth), 3).tolist()}")
     t0 = time.perf_counter()
-    ref, coverage, st = solve_texels(samples, shapes, smooth=args.smooth, iterations=300, tol=1e-7)
+    ref, coverage, st = solve_texels(samples, shapes, smooth=smooth, iterations=300, tol=1e-7)
     print(
         f"reference: {st['iterations']} preconditioned steps, residual "
         f"{st['relative_residual']:.1e}, {time.perf_counter() - t0:.1f} s\n"
@@ -86,7 +92,7 @@ def main() -> None:
         for steps in (5, 10, 15, 20, 30):
             t0 = time.perf_counter()
             x, _, st = solve_texels(
-                samples, shapes, smooth=args.smooth, iterations=steps, precondition=precondition
+                samples, shapes, smooth=smooth, iterations=steps, precondition=precondition
             )
             dt = time.perf_counter() - t0
             d = np.abs(x[seen] - ref[seen])

@@ -96,6 +96,9 @@ def test_a_negative_number_of_splits_is_refused_before_any_work(tmp_path: Path) 
         {"surroundings_min_escape": 1.5},
         {"texture_smooth": -0.5},
         {"texture_smooth": float("nan")},
+        {"texture_smooth_wall": -1.0},
+        {"texture_smooth_floor": float("inf")},
+        {"texture_iterations": 0},
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             run_invert(tmp_path / "nothing_here", None, InvertOptions(**bad))

@@ -188,3 +188,39 @@ def test_a_texel_only_a_wide_footprint_reaches_stays_finite():
     x, coverage, _ = solve_texels(samples, [(H, W)])
     assert np.isfinite(x).all()
     assert np.any(coverage[(coverage > 0)] < 0.1)
+
+
+def test_each_plane_takes_its_own_smoothness():
+    """Two planes, the same noisy samples on each: the plane given the higher smoothness
+    comes out smoother, the other as it does alone, and one number for both planes is
+    the same as that number given per plane."""
+    rng = np.random.default_rng(8)
+    truth = np.full((H * W, 3), 0.5)
+    one = _observe(truth, _geometry(6000, rng))
+    noise = rng.normal(0, 0.03, one.value.shape)
+    two = FootprintSamples(
+        np.concatenate([one.plane, one.plane + 1]),
+        np.concatenate([one.centre, one.centre]),
+        np.concatenate([one.jacobian, one.jacobian]),
+        np.concatenate([one.value + noise, one.value + noise]),
+    )
+    shapes = [(H, W), (H, W)]
+    x, _, _ = solve_texels(two, shapes, smooth=np.array([0.5, 4.0]), iterations=400, tol=1e-10)
+    inner = np.zeros((H, W), bool)
+    inner[3:-3, 3:-3] = True
+    inner = inner.ravel()
+    err = [np.sqrt(((x[k * H * W : (k + 1) * H * W] - truth)[inner] ** 2).mean()) for k in (0, 1)]
+    assert err[1] < 0.6 * err[0]
+    alone, _, _ = solve_texels(
+        FootprintSamples(one.plane, one.centre, one.jacobian, one.value + noise),
+        [(H, W)],
+        smooth=0.5,
+        iterations=400,
+        tol=1e-10,
+    )
+    np.testing.assert_allclose(x[: H * W], alone, atol=1e-6)
+    same, _, _ = solve_texels(two, shapes, smooth=1.0, iterations=10)
+    per, _, _ = solve_texels(two, shapes, smooth=np.array([1.0, 1.0]), iterations=10)
+    np.testing.assert_array_equal(same, per)
+    with pytest.raises(ValueError, match="one per plane"):
+        solve_texels(two, shapes, smooth=np.array([1.0, 2.0, 3.0]))

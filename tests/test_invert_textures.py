@@ -16,6 +16,7 @@ from reroom.invert.textures import (
     planar_groups,
     read_texture_planes,
     read_textures,
+    smoothness_per_plane,
     write_textures,
 )
 from reroom.rays import RayCaster
@@ -434,3 +435,17 @@ def test_sharp_irradiance_comes_with_its_vertex_values(texture_scan):
             sharp_irradiance=lambda p, n: 0 * p,
             sharp_at_vertices=np.zeros((3, 3)),
         )
+
+
+def test_texture_smoothness_per_label():
+    labels = ["wall", "floor", "wall", "ceiling"]
+    np.testing.assert_array_equal(smoothness_per_plane(2.0, labels), [2, 2, 2, 2])
+    np.testing.assert_array_equal(
+        smoothness_per_plane({"wall": 4.0, "floor": 0.5}, labels), [4, 0.5, 4, 1]
+    )
+    with pytest.raises(ValueError, match="unknown label"):
+        smoothness_per_plane({"sofa": 1.0}, labels)
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        smoothness_per_plane({"wall": -1.0}, labels)
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        smoothness_per_plane(float("nan"), labels)

@@ -354,7 +354,7 @@ def solve_texels(
     shapes: list[tuple[int, int]],
     initial: np.ndarray | None = None,
     *,
-    smooth: float = 1.0,
+    smooth: float | np.ndarray = 1.0,
     iterations: int = 15,
     tol: float = 1e-4,
     precondition: bool = True,
@@ -384,7 +384,8 @@ def solve_texels(
         those the steps correct last, are smooth rather than noisy.
     smooth:
         The neighbour penalty: how far it spreads a texel's value, in the photos'
-        median footprints.
+        median footprints; one number for every plane or one per plane (``lam`` then
+        differs by plane, each plane's penalty its own).
     iterations, tol:
         At most this many conjugate-gradient steps; stop when every channel's normal-equation
         residual fell below ``tol`` of its start.
@@ -397,8 +398,8 @@ def solve_texels(
     texels, coverage, stats
         ``(n_texels, 3)`` the solved texels; ``(n_texels,)`` each texel's share of the
         samples' footprints (in samples: a sample's weights sum to 1; 0 where none
-        reaches); ``iterations`` run, ``lam``, ``footprint`` (the median, texels),
-        the relative residual.
+        reaches); ``iterations`` run, ``lam`` (the planes' median), ``footprint``
+        (the median, texels), the relative residual.
     """
     geo, n_tex = _grid(samples, shapes)
     plane, _, _, starts, widths, heights = geo
@@ -431,9 +432,14 @@ def solve_texels(
     if len(plane) == 0 or not reached.any():
         return initial.copy(), coverage, stats
     footprint = median_footprint(samples.jacobian)
-    lam = (float(smooth) * footprint) ** 2 * float(np.median(diag[reached]))
+    per_plane = np.asarray(smooth, np.float64)
+    if per_plane.ndim > 1 or per_plane.size not in (1, len(shapes)):
+        raise ValueError(f"smooth must be one number or one per plane ({len(shapes)})")
+    per_plane = np.broadcast_to(per_plane.reshape(-1), (len(shapes),))
+    lam_plane = (per_plane * footprint) ** 2 * float(np.median(diag[reached]))
+    lam = np.repeat(lam_plane, np.diff(starts))[:, None]  # (n_tex, 1)
     stats["footprint"] = footprint
-    stats["lam"] = lam
+    stats["lam"] = float(np.median(lam_plane))
 
     # Conjugate gradients on the normal equations (F^T F + lam L) x = F^T y, L = D^T D
     # the planes' 4-neighbour Laplacian; the three channels share the matrix.
@@ -451,7 +457,7 @@ def solve_texels(
     # Jacobi preconditioner: the normal matrix's diagonal. A texel's data weight varies
     # by orders of magnitude (one grazing frame against forty head-on ones), which
     # plain conjugate gradients pay for in steps.
-    inv_m = 1.0 / np.maximum(diag + lam * _neighbour_count(shapes), 1e-12)
+    inv_m = 1.0 / np.maximum(diag + lam[:, 0] * _neighbour_count(shapes), 1e-12)
     if not precondition:
         inv_m[:] = 1.0
     inv_m = inv_m[:, None]

@@ -39,7 +39,7 @@ solved texels.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,6 +59,7 @@ __all__ = [
     "planar_groups",
     "read_texture_planes",
     "read_textures",
+    "smoothness_per_plane",
     "write_textures",
 ]
 
@@ -484,11 +485,37 @@ def _finish(
 MIN_COVERAGE = 0.25
 
 
+def smoothness_per_plane(
+    smooth: float | Mapping[str, float], plane_labels: list[str]
+) -> np.ndarray:
+    """The texture solve's smoothness of each plane: ``smooth`` itself, or its value for
+    the plane's label (1 for a label it does not name).
+
+    Raises
+    ------
+    ValueError
+        A smoothness that is negative or not finite, or a label that no plane can have.
+    """
+    if isinstance(smooth, Mapping):
+        unknown = sorted(set(smooth) - set(TEXTURED_LABELS))
+        if unknown:
+            raise ValueError(
+                f"texture smoothness for unknown label(s) {unknown}; "
+                f"textured labels are {sorted(TEXTURED_LABELS)}"
+            )
+        values = np.array([float(smooth.get(lab, 1.0)) for lab in plane_labels])
+    else:
+        values = np.full(len(plane_labels), float(smooth))
+    if not np.all(np.isfinite(values) & (values >= 0)):
+        raise ValueError(f"texture smoothness must be finite and >= 0, got {smooth!r}")
+    return values
+
+
 def _solve_planes(
     footprints: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
     shapes: list[tuple[int, int]],
     stats: dict[str, Any],
-    smooth: float,
+    smooth: np.ndarray,
     iterations: int,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Every plane's texels solved from the samples' footprints
@@ -550,7 +577,7 @@ def photo_textures(
     sharp_at_vertices: np.ndarray | None = None,
     deconvolve: bool = True,
     texels_per_footprint: float = 0.5,
-    deconvolve_smooth: float = 1.0,
+    deconvolve_smooth: float | Mapping[str, float] = 1.0,
     deconvolve_iterations: int = 15,
     caster=None,
     progress: Callable[[int, int], None] | None = None,
@@ -620,8 +647,9 @@ def photo_textures(
         median footprint (at least 5 mm).
     deconvolve_smooth, deconvolve_iterations:
         How far the solve's penalty on neighbouring texels' differences spreads a
-        texel, in the photos' median footprints, and its most conjugate-gradient
-        steps.
+        texel, in the photos' median footprints (one number for every plane, or one
+        per label, ``{"wall": 2.0, ...}``, a label not named taking 1), and its most
+        conjugate-gradient steps.
     caster:
         A :class:`reroom.rays.RayCaster` on ``mesh`` (built if not given).
     progress:
@@ -689,6 +717,7 @@ def photo_textures(
     if not planes:
         notes.append("textures: no floor, ceiling or wall plane in the labels")
         return [], stats
+    smooth_of_plane = smoothness_per_plane(deconvolve_smooth, [p["label"] for p in planes])
     scan = load_scan(scan_dir, check_images=False)
     doc, scales = read_frame_scales(scan_dir)
     lut = scan_response(doc, scan.meta, notes.append)
@@ -944,7 +973,7 @@ def photo_textures(
     solved = coverage = None
     if deconvolve and footprints:
         solved, coverage = _solve_planes(
-            footprints, shapes, stats, deconvolve_smooth, deconvolve_iterations
+            footprints, shapes, stats, smooth_of_plane, deconvolve_iterations
         )
         footprints.clear()
 
@@ -973,6 +1002,8 @@ def photo_textures(
             "offset": plane["offset"],
             "area_m2": plane["area"],
         }
+        if solved is not None:
+            entry["smooth"] = float(smooth_of_plane[p])
         if filled is None:
             entry["observed_fraction"] = 0.0
             stats["planes"].append(entry)
