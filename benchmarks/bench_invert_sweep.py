@@ -35,8 +35,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_run import evaluate  # noqa: E402
 
-#: What ``reroom invert`` reads from a run folder.
-INPUTS = ("ground_truth", "hdr", "images", "layout", "lights", "mesh.ply", "transforms.json")
+#: What ``reroom invert`` reads from a run folder (``depth``: an RGB-D import's frames).
+INPUTS = (
+    "depth",
+    "ground_truth",
+    "hdr",
+    "images",
+    "layout",
+    "lights",
+    "mesh.ply",
+    "transforms.json",
+)
 
 
 def sweep_dir(run: Path, work: Path, setting: str) -> Path:

@@ -288,8 +288,9 @@ class InvertOptions:
         pixel footprints: higher keeps more of the photos' noise and of the model's
         misfit out of flat surfaces, lower keeps more of a pattern's contrast. Walls
         and ceilings are usually paint, floors boards or tiles: on `furnished` walls at
-        4 and the floor at 0.5 render every measured view better than 1 everywhere
-        (docs/invert.md, "Photo textures"); a patterned wallpaper wants its wall lower.
+        4 and the floor at 0.5 render every measured view as well as or better than 1
+        everywhere (docs/invert.md, "Photo textures"); a patterned wallpaper wants its
+        wall lower.
     texture_iterations : int
         The texture solve's most conjugate-gradient steps.
     texture_point_direct : bool
