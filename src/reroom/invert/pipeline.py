@@ -1689,7 +1689,7 @@ def _surface_textures(
     and normals, is the point lights' direct light that the textures evaluate at each
     sample instead of interpolating it between vertices."""
     from reroom.invert.solve import model_irradiance
-    from reroom.invert.textures import photo_textures
+    from reroom.invert.textures import TEXTURED_LABELS, photo_textures
     from reroom.io.jsonfile import read_json
 
     if evaluation_radiance:
@@ -1720,7 +1720,7 @@ def _surface_textures(
             deconvolve=options.texture_solve,
             deconvolve_smooth={
                 label: options.texture_smooth * getattr(options, f"texture_smooth_{label}")
-                for label in ("wall", "floor", "ceiling")
+                for label in TEXTURED_LABELS
             },
             deconvolve_iterations=options.texture_iterations,
             sharp_irradiance=None if sharp is None else point_direct,

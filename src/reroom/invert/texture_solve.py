@@ -11,9 +11,9 @@ regression of the renders on the truth's, 0.36).
 Here every sample is a pixel: its value is the mean of the bilinear texture over its
 footprint, the parallelogram its pixel square projects to on the plane (sampled at
 2 x 2 points). The texture that best explains all samples, on a texel grid finer than
-the photos' pixels, is solved by conjugate gradients on the normal equations ,
-with a small penalty on differences between neighbouring texels (it decides texels no
-footprint covers well and keeps the noise of a deconvolution down). The renderer then
+the photos' pixels, is solved by conjugate gradients on the normal equations, with a
+penalty on differences between neighbouring texels, its weight set per plane (it decides
+texels no footprint covers well and keeps the noise of a deconvolution down). The renderer then
 blurs it once, as the camera does.
 
 The operators are numba loops: a footprint touches up to 16 texels and a 300-frame
