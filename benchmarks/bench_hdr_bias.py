@@ -23,7 +23,9 @@ per channel, over the vertices of a band of true luminance; emitters (true label
 * Tables: (1) per band, with the share of clean samples clipped (level 255) per
   channel; (2) bands of the vertices that have clean samples against those seen only
   near image or depth edges (flagged samples), with the truth parts of the latter;
-  (3) per surface (true label); (4) within 1.5 m of each point or line light against the rest;
+  (3) per surface (true label), and (3b) per part of a light's fitting (a tube's
+  baffles, a lamp's shade: their samples a pixel from the clipped emitter); (4)
+  within 1.5 m of each point or line light against the rest;
   (5) for vertices with no clipped sample, the mean of their samples against their
   median (Monte-Carlo noise of the path-traced frames is skewed, a sensor's is not);
   (6) with ``--render-frames``, those frames path-traced again at ``--render-spp`` by
@@ -206,6 +208,22 @@ def main() -> None:
             s = base & (label == k)
             if s.sum() >= 3:
                 print(f"| {name} | {int(s.sum())} | {_ratio(est, tru, s)} |")
+
+        # (3b) the light fittings' own parts (a tube's baffles, a lamp's shade): thin
+        # geometry a pixel from a clipped emitter, whose samples may hold its spill.
+        fittings = [
+            (i, n)
+            for i, n in enumerate(part_names)
+            if i not in emitter_parts and any(n.startswith(f"{x['name']}_") for x in gt["lights"])
+        ]
+        if fittings:
+            print("\n(3b) per light-fitting part, every band (clean and edge-only samples)\n")
+            print("| part | vertices | seen only near edges | HDR / truth |\n|---|---|---|---|")
+            for i, n in fittings:
+                s = base & (part == i)
+                if s.sum() >= 3:
+                    edge_only = int((s & (n_clean == 0)).sum())
+                    print(f"| {n} | {int(s.sum())} | {edge_only} | {_ratio(est, tru, s)} |")
 
         if lights:
             print(
