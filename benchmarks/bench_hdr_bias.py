@@ -3,12 +3,13 @@
 Usage::
 
     python benchmarks/bench_hdr_bias.py SCAN [--truth PLY] [--bin-by PLY]
-        [--scales true|solved] [--sampling box3,nearest]
+        [--scales true|solved] [--sampling box3,nearest] [--footprint on,off]
         [--render-frames 5,15 [--render-spp 256] [--clip-spp 16,64,256]]
 
 ``SCAN`` is a synthetic scan with ``ground_truth/`` and ``hdr/``. Its frames are
 reprojected again here (``collect_observations`` and ``reproject_radiance`` with the
-pipeline's defaults, or the ``--sampling`` named), with the frames' *true* scales
+pipeline's defaults, or the ``--sampling`` named, and with the footprint test of edge
+samples on, off or both, ``--footprint on,off``), with the frames' *true* scales
 (``--scales true``, the default: the reprojection alone) or the ones ``reroom hdr``
 solved (``solved``: divided by their per-channel median ratio to the true ones, so
 only the frame-to-frame errors stay). Every figure is a ratio of sums, HDR over truth,
@@ -106,6 +107,11 @@ def main() -> None:
     ap.add_argument("--bin-by", type=Path, help="independent true radiance PLY for the bands")
     ap.add_argument("--scales", choices=("true", "solved"), default="true")
     ap.add_argument("--sampling", default="box3", help="comma-separated ObserveOptions.sampling")
+    ap.add_argument(
+        "--footprint",
+        default="on",
+        help="comma-separated on/off: ObserveOptions.footprint_test (on,off: both, side by side)",
+    )
     ap.add_argument("--render-frames", default="", help="comma-separated frame indices for (6)")
     ap.add_argument("--render-spp", type=int, default=256)
     ap.add_argument(
@@ -158,14 +164,17 @@ def main() -> None:
     normals = vertex_normals(scan.mesh)
     lights = [x for x in gt["lights"] if x["type"] in ("point", "line")]
     pos = np.asarray(verts.vertices, float)
-    for sampling in args.sampling.split(","):
+    runs = [(s, f) for s in args.sampling.split(",") for f in args.footprint.split(",")]
+    for sampling, footprint in runs:
+        if footprint not in ("on", "off"):
+            raise SystemExit(f"--footprint takes on and off, not {footprint!r}")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             obs = collect_observations(
                 scan.frames,
                 scan.mesh,
                 lut,
-                ObserveOptions(sampling=sampling),
+                ObserveOptions(sampling=sampling, footprint_test=footprint == "on"),
                 caster,
                 normals=normals,
             )
@@ -181,7 +190,7 @@ def main() -> None:
             m = s[v_clean]
             return " / ".join(f"{x:.2f}" for x in clipped[m].mean(0)) if m.any() else "-"
 
-        print(f"\n### sampling `{sampling}`\n")
+        print(f"\n### sampling `{sampling}`, footprint test {footprint}\n")
         print("(1) per band of true luminance: HDR / truth (r / g / b), clipped clean samples\n")
         print("| band | vertices | HDR / truth | clipped samples |\n|---|---|---|---|")
         print("\n".join(_band_rows(est, tru, key, base, clip_share)))

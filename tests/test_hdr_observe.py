@@ -10,6 +10,7 @@ import trimesh
 
 from reroom.hdr.linearize import response_lut
 from reroom.hdr.observe import (
+    EDGE_FLAGS,
     NEAR_IMAGE_EDGE,
     ObserveOptions,
     collect_observations,
@@ -145,3 +146,117 @@ def test_vertex_normals_and_degenerate_vertices():
     n = vertex_normals(mesh)
     np.testing.assert_allclose(n[:3], [[0, 0, 1]] * 3)
     np.testing.assert_allclose(n[3], 0.0)  # a vertex of no face
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "bilinear", "box3"])
+def test_footprint_test_keeps_values_where_every_pixel_sees_the_vertex(box_scan, sampling):
+    """With (nearly) every sample flagged, the footprint test reads the same pixels as
+    the sampling itself wherever they all see the vertex's surface."""
+    from reroom.hdr.observe import FOREIGN_FOOTPRINT, MIXED_FOOTPRINT
+
+    scan = load_scan(box_scan)
+    lut = response_lut("auto", scan.meta)
+    frames = scan.frames[:3]
+    plain = collect_observations(
+        frames, scan.mesh, lut, ObserveOptions(sampling=sampling, footprint_test=False)
+    )
+    tested = collect_observations(
+        frames, scan.mesh, lut, ObserveOptions(sampling=sampling, gradient_threshold=-1.0)
+    )
+    assert np.array_equal(plain.vertex, tested.vertex)
+    edge = (tested.flags & EDGE_FLAGS) != 0
+    assert edge.mean() > 0.2  # (pixels of zero gradient stay clean, untested)
+    whole = edge & ((tested.flags & (MIXED_FOOTPRINT | FOREIGN_FOOTPRINT)) == 0)
+    assert whole.sum() > 0.6 * edge.sum()  # a box room: most footprints lie on one face
+    diff = np.abs(plain.linear_values(whole) - tested.linear_values(whole))
+    assert diff.max() < 1e-3
+    if sampling == "nearest":  # one pixel: on the vertex's surface or not
+        assert not np.any(tested.flags & MIXED_FOOTPRINT)
+
+
+def _bar_scene(tmp_path, with_backplate: bool) -> tuple[Path, np.ndarray, np.ndarray]:
+    """A dark bar 3 pixels wide (2 cm deep) in front of a bright wall (and, if asked, of
+    a brighter plate 3 cm behind its front face, a separate piece of mesh), seen by
+    three cameras."""
+    from reroom.hdr.synthetic import _box
+
+    pieces = [box_room(SIZE, spacing=0.1, obstacle=False)]
+    pieces += _box((3.4, 1.46, 0.6), (3.42, 1.54, 1.9), 0.02, inward=False)
+    n_room_and_bar = sum(len(p[0]) for p in pieces)
+    if with_backplate:
+        pieces += _box((3.43, 1.3, 0.5), (3.44, 1.7, 2.0), 0.04, inward=False)
+    verts, faces, off = [], [], 0
+    for pv, pf in pieces:
+        verts.append(pv)
+        faces.append(pf + off)
+        off += len(pv)
+    v, f = np.vstack(verts), np.vstack(faces)
+    n_room = len(pieces[0][0])
+    on_bar = (np.arange(len(v)) >= n_room) & (np.arange(len(v)) < n_room_and_bar)
+    rad = np.full((len(v), 3), 0.5)
+    rad[on_bar] = 0.02
+    rad[n_room_and_bar:] = 0.9
+    poses = [look_at([1.0, 1.5 + dy, 1.3], [4.0, 1.5, 1.2]) for dy in (-0.2, 0.0, 0.2)]
+    scan_dir = write_projected_scan(
+        tmp_path / f"bar{int(with_backplate)}",
+        v,
+        f,
+        rad,
+        poses,
+        Intrinsics.from_fov(128, 96, 70.0),
+        scales=np.ones((3, 3)),
+        noise_seed=None,
+    )
+    # The bar's faces turned to the cameras (x = 3.4).
+    return scan_dir, v, on_bar & (np.abs(v[:, 0] - 3.4) < 1e-9)
+
+
+def _bar_error(scan_dir: Path, front: np.ndarray, test: bool) -> float:
+    from reroom.hdr.reproject import reproject_radiance
+
+    scan = load_scan(scan_dir)
+    lut = response_lut("auto", scan.meta)
+    obs = collect_observations(scan.frames, scan.mesh, lut, ObserveOptions(footprint_test=test))
+    r = reproject_radiance(obs, np.ones((3, 3)), level_linear=lut)
+    seen = front & r.observed
+    assert seen.sum() > 10
+    return float(np.median(r.radiance[seen, 1] / 0.02 - 1.0))
+
+
+def test_footprint_test_reads_a_thin_bar_without_the_wall_behind(tmp_path):
+    """The 3x3 average of the bar's samples mixes in the wall; the footprint test keeps
+    the bar's own pixels."""
+    scan_dir, _, front = _bar_scene(tmp_path, with_backplate=False)
+    assert _bar_error(scan_dir, front, test=False) > 1.0  # twice the bar's radiance and more
+    assert abs(_bar_error(scan_dir, front, test=True)) < 0.1
+
+
+def test_footprint_test_tells_a_separate_piece_close_behind(tmp_path, monkeypatch):
+    """A brighter plate 3 cm behind the bar's face (an emitter in its housing) lies within the
+    footprint's reach and faces the same way: only its being another piece of mesh
+    keeps it out of the bar's values."""
+    import reroom.hdr.observe as observe
+
+    scan_dir, _, front = _bar_scene(tmp_path, with_backplate=True)
+    assert abs(_bar_error(scan_dir, front, test=True)) < 0.1
+
+    def one_piece(mesh):
+        n, m = len(mesh.vertices), len(mesh.faces)
+        return observe.MeshPieces(np.zeros(n, np.int64), np.zeros(m, np.int64))
+
+    monkeypatch.setattr(observe.MeshPieces, "build", staticmethod(one_piece))
+    assert _bar_error(scan_dir, front, test=True) > 0.5
+
+
+def test_mesh_pieces_label_connected_parts():
+    from reroom.hdr.observe import MeshPieces
+
+    a = trimesh.creation.box()
+    b = trimesh.creation.box()
+    b.apply_translation([3, 0, 0])
+    mesh = trimesh.util.concatenate([a, b])
+    pieces = MeshPieces.build(mesh)
+    assert len(np.unique(pieces.vertex)) == 2
+    assert np.all(pieces.vertex[: len(a.vertices)] == pieces.vertex[0])
+    assert pieces.vertex[0] != pieces.vertex[-1]
+    assert np.array_equal(pieces.face, pieces.vertex[mesh.faces[:, 0]])

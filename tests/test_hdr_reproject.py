@@ -270,3 +270,31 @@ def test_a_censored_median_never_falls_below_the_first_pass():
     first = reproject_radiance(obs, scales).radiance
     rad = reproject_radiance(obs, scales, level_linear=LINEAR).radiance
     assert np.all(rad[0] >= first[0] - 1e-12)
+
+
+def test_sample_tiers_pick_clean_then_edge_samples_and_never_foreign_ones():
+    from reroom.hdr.observe import FOREIGN_FOOTPRINT, MIXED_FOOTPRINT, NEAR_IMAGE_EDGE
+    from reroom.hdr.reproject import sample_tiers
+
+    edge, mixed, foreign = NEAR_IMAGE_EDGE, NEAR_IMAGE_EDGE | MIXED_FOOTPRINT, FOREIGN_FOOTPRINT
+    # vertex 0: a clean sample (level 50) and an edge one (200): the clean one alone;
+    # 1: an edge (60) and a mixed edge sample (80): both (one tier); 2: foreign only
+    # (unobserved); 3: a foreign sample (250) and an edge one (90): the edge one.
+    vi = np.array([0, 0, 1, 1, 2, 3, 3])
+    fj = np.array([0, 1, 0, 1, 0, 0, 1])
+    levels = np.array([50, 200, 60, 80, 120, 250, 90], np.uint8)[:, None].repeat(3, 1)
+    flags = np.array([0, edge, edge, mixed, foreign, foreign | edge, edge], np.uint8)
+    assert sample_tiers(flags).tolist() == [2, 1, 1, 1, 0, 0, 1]
+    obs = Observations.from_arrays(4, 2, vi, fj, levels, flags=flags)
+    rad = reproject_radiance(obs, np.ones((2, 3)))
+    assert rad.observed.tolist() == [True, True, False, True]
+    assert rad.sample_count.tolist() == [1, 2, 0, 1]
+    np.testing.assert_allclose(rad.radiance[0], 50 / 255, rtol=1e-4)
+    np.testing.assert_allclose(rad.radiance[2], 0.0)
+    np.testing.assert_allclose(rad.radiance[3], 90 / 255, rtol=1e-4)
+    best = best_frame_texture(obs)
+    assert best.frame.tolist() == [0, 1, -1, 1]  # vertex 1: one tier, level 80 more trusted
+    # With the second (predicted-weight) pass too, the foreign sample stays out.
+    rad2 = reproject_radiance(obs, np.ones((2, 3)), level_linear=LINEAR)
+    np.testing.assert_allclose(rad2.radiance[3], 90 / 255, rtol=1e-4)
+    assert not rad2.observed[2]

@@ -122,3 +122,19 @@ def test_the_pipeline_drops_the_prior_for_an_unresolved_fixture() -> None:
     assert "no shape prior" in notes[0]
     off = InvertOptions(line_shape_prior=0.0)
     assert _line_open_shape(scan, housing, "tube", geometry, basis, off, []) == (None, {}, geometry)
+
+
+def test_a_line_lights_fitting_reaches_its_detected_width() -> None:
+    """A fused scan's tube and housing glow as one blob wider than the tube: the vertices
+    within half that width (plus the margin) are the fitting, not receivers."""
+    from reroom.invert.pipeline import _fixture_vertices
+    from reroom.lights.lightset import Light
+
+    g = {"p0": [0.0, 0.0, 2.5], "p1": [1.0, 0.0, 2.5], "d_perp": [0, 0, 1], "radius": 0.016}
+    pts = np.array([[0.5, 0.0, 2.5 - d] for d in (0.06, 0.07, 0.075, 0.09)])
+    bare = Light("line0", "line", "user", g, {}, "")
+    assert _fixture_vertices(pts, [bare], 0.05).tolist() == [True, False, False, False]
+    blob = Light("line0", "line", "detected", g, {"size_m": [1.0, 0.054]}, "")
+    assert _fixture_vertices(pts, [blob], 0.05).tolist() == [True, True, True, False]
+    thin = Light("line0", "line", "detected", g, {"size_m": [1.0, 0.02]}, "")
+    assert _fixture_vertices(pts, [thin], 0.05).tolist() == [True, False, False, False]

@@ -330,9 +330,11 @@ def reproject_medians(
     Sample ``order[k]`` for ``offsets[i] <= k < offsets[i+1]`` belongs to vertex
     ``i``; its linear value is ``decode[codes[...]]`` and its weight in channel
     ``c`` is ``confidence[level] * geometry`` (eq. 3.4). Samples of frames whose
-    ``inv_scale`` is not finite are skipped, and samples with an edge flag (bits
-    1 | 2 of ``flags``) are used only by vertices without any other. Vertices without
-    samples keep ``out = 0`` and ``count = 0``.
+    ``inv_scale`` is not finite are skipped, and each vertex uses only its samples of
+    the best tier (:func:`_sample_tier`): its clean samples if it has any, else those
+    near an image or depth edge (bits 1 | 2 of ``flags``). Samples whose pixels all see
+    another surface (bit 128) are never used. Vertices without samples keep ``out = 0``
+    and ``count = 0``.
 
     With an empty ``prior`` (shape ``(0, 3)``), ``level`` is the sample's own 8-bit
     level (the thesis). Otherwise it is the level that ``prior[i, c] / inv_scale``
@@ -348,16 +350,18 @@ def reproject_medians(
     top = confidence.shape[0] - 1
     for i in nb.prange(n):
         s, e = offsets[i], offsets[i + 1]
-        m_all = 0
-        m_clean = 0
+        best = -1
+        m = 0
         for k in range(s, e):
             smp = order[k]
             if np.isfinite(inv_scale[frames[smp], 0]):
-                m_all += 1
-                if (flags[smp] & 3) == 0:
-                    m_clean += 1
-        only_clean = m_clean > 0
-        m = m_clean if only_clean else m_all
+                tier = _sample_tier(flags[smp])
+                if tier > best:
+                    best, m = tier, 0
+                if tier == best:
+                    m += 1
+        if best <= 0:  # only samples of other surfaces
+            m = 0
         count[i] = m
         if m == 0:
             continue
@@ -369,7 +373,7 @@ def reproject_medians(
             for k in range(s, e):
                 smp = order[k]
                 j = frames[smp]
-                if not np.isfinite(inv_scale[j, 0]) or (only_clean and (flags[smp] & 3) != 0):
+                if not np.isfinite(inv_scale[j, 0]) or _sample_tier(flags[smp]) != best:
                     continue
                 vals[q] = decode[codes[smp, c]] * inv_scale[j, c]
                 bounds[q] = vals[q]
@@ -391,6 +395,18 @@ def reproject_medians(
                 low = _weighted_median(bounds, wts, m)
                 if low > out[i, c]:
                     out[i, c] = low
+
+
+@nb.njit(cache=True)
+def _sample_tier(flag: np.uint8) -> int:
+    """How much a sample is trusted, from its flags (``reroom.hdr.observe``): 2 clean,
+    1 near an image or depth edge, 0 none of its pixels on its vertex's surface (bit
+    128, never used)."""
+    if flag & 128:
+        return 0
+    if (flag & 3) == 0:
+        return 2
+    return 1
 
 
 @nb.njit(cache=True)

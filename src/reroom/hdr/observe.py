@@ -42,6 +42,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 
 from reroom.errors import ReroomError
 from reroom.hdr import _kernels as K
@@ -52,6 +54,8 @@ from reroom.scan import Frame
 __all__ = [
     "CLIPPED",
     "EDGE_FLAGS",
+    "FOREIGN_FOOTPRINT",
+    "MIXED_FOOTPRINT",
     "NEAR_DEPTH_EDGE",
     "NEAR_IMAGE_EDGE",
     "decode_linear",
@@ -70,6 +74,13 @@ NEAR_DEPTH_EDGE = np.uint8(2)
 CLIPPED = np.uint8(4)
 #: Flags that mark a sample as possibly misregistered (not *clean*).
 EDGE_FLAGS = np.uint8(NEAR_IMAGE_EDGE | NEAR_DEPTH_EDGE)
+#: An edge sample some of whose pixels see another surface than the vertex's (the
+#: footprint test, ``ObserveOptions.footprint_test``); its value is the mean of the
+#: pixels that do see the vertex's surface ...
+MIXED_FOOTPRINT = np.uint8(64)
+#: ... or none of them does: the sample shows another surface (thin geometry, or
+#: just past an occluding edge) and says nothing about this vertex.
+FOREIGN_FOOTPRINT = np.uint8(128)
 
 #: Linear values are stored as ``round(sqrt(x) * 65535)`` in uint16: 6 bytes per
 #: sample instead of 24, relative precision better than 0.2 % above 8-bit level 8.
@@ -140,6 +151,21 @@ class ObserveOptions:
     keep_flagged:
         Keep samples near image or depth edges (flagged) for the reprojection of
         vertices that have no other sample; ``False`` drops them.
+    footprint_test:
+        Cast a ray through the centre of every pixel an edge sample's value is read
+        from (one, four or nine, per ``sampling``) and keep, for its value, only the
+        pixels that see the vertex's own surface (a hit within
+        ``footprint_radius`` pixels' width of the vertex, on a face turned within 60
+        degrees of the vertex's normal, of the same connected piece of mesh or in
+        the vertex's plane). Near an edge the 3x3 average otherwise mixes in the surface behind: a
+        thin black baffle in front of a white ceiling read five times its radiance
+        (``docs/hdr.md``). Samples are flagged :data:`MIXED_FOOTPRINT` or
+        :data:`FOREIGN_FOOTPRINT`; clean samples are not tested (their pixels are
+        away from any image or depth edge).
+    footprint_radius:
+        How far from the vertex, in pixel widths at the vertex's depth (divided by
+        the cosine of the view angle), a pixel's hit may lie and still be the
+        vertex's surface.
     """
 
     visibility: str = "depth"
@@ -155,6 +181,8 @@ class ObserveOptions:
     gradient_radius: int = 1
     gradient_floor: float = 0.01
     keep_flagged: bool = True
+    footprint_test: bool = True
+    footprint_radius: float = 3.0
 
 
 @dataclass
@@ -324,6 +352,24 @@ class VertexChunks:
         return VertexChunks(perm.astype(np.int64), offsets, centers, radii)
 
 
+@dataclass(frozen=True)
+class MeshPieces:
+    """The mesh's connected pieces: the label of each vertex's and each face's."""
+
+    vertex: np.ndarray
+    face: np.ndarray
+
+    @staticmethod
+    def build(mesh) -> MeshPieces:
+        """Label the pieces of ``mesh`` (vertices joined by its faces' edges)."""
+        f = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
+        n = len(mesh.vertices)
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        graph = sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), (n, n))
+        _, labels = csgraph.connected_components(graph, directed=False)
+        return MeshPieces(labels, labels[f[:, 0]] if len(f) else np.zeros(0, np.int64))
+
+
 def _intrinsics_vector(frame: Frame) -> np.ndarray:
     k = frame.intrinsics
     return np.array([k.fx, k.fy, k.cx, k.cy, k.width, k.height, k.k1, k.k2, k.p1, k.p2], float)
@@ -406,6 +452,7 @@ def collect_observations(
     luma_lut = np.ascontiguousarray(np.outer(LUMA, np.asarray(lut, np.float64)), np.float32)
 
     chunks = VertexChunks.build(verts)
+    pieces = MeshPieces.build(mesh) if opt.footprint_test else None
     u = np.empty(n_v, np.float64)
     v = np.empty(n_v, np.float64)
     g = np.empty(n_v, np.float64)
@@ -500,10 +547,22 @@ def collect_observations(
             stats["kept"][j] = len(idx)
             lin, clipped = K.sample_pixels(image, lut64, u[idx], v[idx], SAMPLING[opt.sampling])
             flags[clipped] |= CLIPPED
+            levels = image[rows, cols]
+            if opt.footprint_test:
+                edge = np.flatnonzero(flags & EDGE_FLAGS)
+                if len(edge):
+                    lin[edge], flags[edge] = _footprint_values(
+                        caster, frame, image, lut64, verts, nrm, idx[edge], u[idx[edge]],
+                        v[idx[edge]], z[idx[edge]], flags[edge], pieces, opt,
+                    )  # fmt: skip
+                    # The nearest pixel of a mixed sample may show the other surface (a
+                    # light, clipped): its level is that of the value kept instead.
+                    mixed = edge[(flags[edge] & MIXED_FOOTPRINT) != 0]
+                    levels[mixed] = _nearest_levels(lin[mixed], lut64)
             parts.append(
                 (
                     idx.astype(np.int32),
-                    image[rows, cols],
+                    levels,
                     encode_linear(lin),
                     g[idx].astype(np.float32),
                     flags,
@@ -523,6 +582,95 @@ def collect_observations(
     stats_out: dict[str, np.ndarray] = dict(stats)
     stats_out["error"] = np.array(errors, dtype=object)
     return Observations(n_v, n_f, vertex, frame_idx, value, linear, geom, flags, offsets, stats_out)
+
+
+def _nearest_levels(linear: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """The 8-bit level whose linear value (``lut``, non-decreasing) is nearest each value."""
+    hi = np.clip(np.searchsorted(lut, linear), 1, len(lut) - 1)
+    lower = (linear - lut[hi - 1]) < (lut[hi] - linear)
+    return np.where(lower, hi - 1, hi).astype(np.uint8)
+
+
+def _footprint_pixels(
+    u: np.ndarray, v: np.ndarray, width: int, height: int, sampling: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels ``(rows, cols)`` each sample's value is read from, ``(S, P)`` each,
+    and their weights ``(S, P)`` in that value (as :func:`~reroom.hdr._kernels.sample_pixels`
+    reads them; a pixel outside the image has weight 0)."""
+    col = np.clip(np.floor(u).astype(np.int64), 0, width - 1)
+    row = np.clip(np.floor(v).astype(np.int64), 0, height - 1)
+    if sampling == "nearest":
+        return row[:, None], col[:, None], np.ones((len(u), 1))
+    if sampling == "bilinear":
+        gx, gy = u - 0.5, v - 0.5
+        x0 = np.clip(np.floor(gx).astype(np.int64), 0, max(width - 2, 0))
+        y0 = np.clip(np.floor(gy).astype(np.int64), 0, max(height - 2, 0))
+        fx, fy = np.clip(gx - x0, 0, 1), np.clip(gy - y0, 0, 1)
+        x1, y1 = np.minimum(x0 + 1, width - 1), np.minimum(y0 + 1, height - 1)
+        rows = np.stack([y0, y0, y1, y1], 1)
+        cols = np.stack([x0, x1, x0, x1], 1)
+        w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+        return rows, cols, w
+    dr, dc = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+    rows = row[:, None] + dr.ravel()[None, :]
+    cols = col[:, None] + dc.ravel()[None, :]
+    inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+    return np.clip(rows, 0, height - 1), np.clip(cols, 0, width - 1), inside.astype(float)
+
+
+def _footprint_values(
+    caster: RayCaster,
+    frame: Frame,
+    image: np.ndarray,
+    lut: np.ndarray,
+    verts: np.ndarray,
+    normals: np.ndarray,
+    vertex: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    depth: np.ndarray,
+    flags: np.ndarray,
+    pieces: MeshPieces,
+    opt: ObserveOptions,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The footprint test of ``ObserveOptions.footprint_test`` for some samples of one
+    frame: their linear values from the pixels that see their vertex's surface, and
+    their flags with :data:`MIXED_FOOTPRINT` / :data:`FOREIGN_FOOTPRINT` set."""
+    k = frame.intrinsics
+    rows, cols, weight = _footprint_pixels(u, v, k.width, k.height, opt.sampling)
+    n, p = rows.shape
+    uv = np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], axis=1)
+    origin, direction = frame.pixel_rays(uv)
+    hits = caster.intersect(origin, direction)
+    x = np.repeat(verts[vertex], p, axis=0)
+    nv = np.repeat(normals[vertex], p, axis=0)
+    to_cam = frame.center - verts[vertex]
+    cos = np.abs(np.sum(to_cam * normals[vertex], axis=1)) / np.linalg.norm(to_cam, axis=1)
+    reach = opt.footprint_radius * depth / k.fx / np.maximum(cos, 0.2)
+    near = np.linalg.norm(np.where(hits.hit[:, None], hits.points, np.inf) - x, axis=1)
+    facing = np.sum(hits.normals * nv, axis=1) > 0.5
+    # A separate piece of mesh close by (a light's emitter inside its housing, a bulb in
+    # its shade) is another surface, unless it continues the vertex's plane (a wall
+    # meshed in pieces around a window): within a quarter of a pixel of it.
+    same_piece = pieces.face[np.where(hits.hit, hits.face, 0)] == np.repeat(
+        pieces.vertex[vertex], p
+    )
+    off_plane = np.abs(np.sum((np.where(hits.hit[:, None], hits.points, 0.0) - x) * nv, axis=1))
+    coplanar = (off_plane <= np.repeat(0.25 * depth / k.fx, p)) & (
+        np.sum(hits.normals * nv, axis=1) > 0.95
+    )
+    owned = hits.hit & facing & (same_piece | coplanar) & (near <= np.repeat(reach, p))
+    owned = owned.reshape(n, p)
+    w = weight * owned
+    total = w.sum(axis=1)
+    values = lut[image[rows, cols]]  # (n, p, 3)
+    lin = np.einsum("np,npc->nc", w, values) / np.where(total > 0, total, 1.0)[:, None]
+    out = flags.copy()
+    mixed = (total > 0) & np.any((weight > 0) & ~owned, axis=1)
+    out[mixed] |= MIXED_FOOTPRINT
+    out[total <= 0] |= FOREIGN_FOOTPRINT
+    whole = np.einsum("np,npc->nc", weight, values) / weight.sum(axis=1)[:, None]
+    return np.where((total > 0)[:, None], lin, whole), out
 
 
 def _empty_part() -> tuple[np.ndarray, ...]:

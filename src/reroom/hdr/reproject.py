@@ -22,10 +22,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from reroom.hdr import _kernels as K
-from reroom.hdr.observe import EDGE_FLAGS, Observations, decode_linear
+from reroom.hdr.observe import (
+    EDGE_FLAGS,
+    FOREIGN_FOOTPRINT,
+    Observations,
+    decode_linear,
+)
 from reroom.hdr.solve import hat_confidence
 
-__all__ = ["CONFIDENCE_FLOOR", "BestFrame", "Radiance", "best_frame_texture", "reproject_radiance"]
+__all__ = [
+    "CONFIDENCE_FLOOR",
+    "BestFrame",
+    "Radiance",
+    "best_frame_texture",
+    "reproject_radiance",
+    "sample_tiers",
+]
 
 #: Smallest confidence of any 8-bit level (eq. 3.3 gives 0 for level 0).
 CONFIDENCE_FLOOR = 1e-3
@@ -79,6 +91,20 @@ class VertexGroups:
 
     def __init__(self, obs: Observations) -> None:
         self.order, self.offsets = K.group_by(obs.vertex, obs.n_vertices)
+
+
+def sample_tiers(flags: np.ndarray) -> np.ndarray:
+    """How much each sample is trusted, from its flags: each vertex's radiance uses only
+    its samples of the highest tier.
+
+    2: clean; 1: near an image or depth edge (:data:`~reroom.hdr.observe.EDGE_FLAGS`;
+    where the footprint test found some of its pixels on another surface, its value
+    is already the mean of the others, :data:`~reroom.hdr.observe.MIXED_FOOTPRINT`);
+    0: all its pixels see another surface than its vertex's
+    (:data:`~reroom.hdr.observe.FOREIGN_FOOTPRINT`), never used.
+    """
+    f = np.asarray(flags, np.uint8)
+    return np.where((f & FOREIGN_FOOTPRINT) != 0, 0, np.where((f & EDGE_FLAGS) == 0, 2, 1))
 
 
 def reproject_radiance(
@@ -150,7 +176,8 @@ def reproject_radiance(
 def best_frame_texture(obs: Observations, groups: VertexGroups | None = None) -> BestFrame:
     """Each vertex's best single sample: the frame where its weight ``c * g`` is largest.
 
-    Clean samples (no edge flag) are preferred to flagged ones.
+    Samples of a higher tier (:func:`sample_tiers`: clean first) are preferred, and
+    those whose pixels all show another surface are never chosen.
     """
     if len(obs) == 0:
         return BestFrame(
@@ -160,8 +187,10 @@ def best_frame_texture(obs: Observations, groups: VertexGroups | None = None) ->
         )
     groups = groups or VertexGroups(obs)
     conf = _confidence_lut()[obs.value].min(axis=1)
-    # Clean samples first: a flagged one is chosen only when a vertex has nothing else.
-    score = conf * obs.geometry - 1e30 * ((obs.flags & EDGE_FLAGS) != 0)
+    # Higher tiers first: a flagged sample is chosen only when a vertex has nothing better.
+    tier = sample_tiers(obs.flags)
+    w = conf * obs.geometry
+    score = np.where(tier > 0, tier + w / (1.0 + w), -np.inf)  # the weight breaks ties only
     best = K.best_samples(groups.offsets, groups.order, score)
     has = best >= 0
     frame = np.where(has, obs.frame[np.maximum(best, 0)], -1)

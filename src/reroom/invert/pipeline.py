@@ -540,13 +540,23 @@ def _load_lights(scan: Path, n_vertices: int, notes: list[str]):
 
 
 def _fixture_vertices(points: np.ndarray, lights: list, margin: float) -> np.ndarray:
-    """Vertices on the glowing surface of a line or point light (within ``margin``)."""
+    """Vertices on the glowing surface of a line or point light (within ``margin``).
+
+    A line light's glowing surface reaches its tube's radius or, where the detection
+    measured it wider (``evidence["size_m"]``: a fused scan's tube and housing, one blob
+    brighter than the room), half that width.
+    """
     near = np.zeros(len(points), dtype=bool)
     for light in lights:
         g = light.geometry
         if light.type == "line":
             dist = segment_distance(points, g["p0"], g["p1"])
-            near |= dist <= float(g.get("radius", 0.0)) + margin
+            reach = float(g.get("radius", 0.0))
+            size = (light.evidence or {}).get("size_m")
+            if isinstance(size, list | tuple) and len(size) >= 2:
+                width = float(size[1])
+                reach = max(reach, width / 2) if np.isfinite(width) else reach
+            near |= dist <= reach + margin
         elif light.type == "point":
             near |= np.linalg.norm(points - np.asarray(g["position"], float), axis=1) <= margin
     return near

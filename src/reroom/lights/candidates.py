@@ -110,7 +110,11 @@ class Component:
         the middle of ``axes[0]``): a tube's axis, which ``center`` misses when the scan
         shows only the tube's lower half. NaN when the fit fails.
     section_radius:
-        That circle's radius (NaN when the fit fails).
+        That circle's radius (NaN when the fit fails); for a long thin component whose
+        cross-sections agree on a tube, their circles' median radius.
+    section_from_slices:
+        Whether the cross-sections agreed on a tube (:func:`_tube_slices`): the axes
+        then run along the line through their centres, and ``section_radius`` is theirs.
     """
 
     vertices: np.ndarray
@@ -128,6 +132,7 @@ class Component:
     edge_contrast: float
     section_center: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     section_radius: float = float("nan")
+    section_from_slices: bool = False
 
     @property
     def size(self) -> tuple[float, float]:
@@ -165,6 +170,10 @@ def describe_component(
     order = np.argsort(evals)[::-1]
     evals, axes = np.maximum(evals[order], 0.0), evecs[:, order].T
     axes = _min_area_axes(q, axes)
+    slices = _tube_slices(q @ axes.T)
+    along = None if slices is None else _axes_along(axes, slices)
+    if along is not None:
+        axes = along
     coords = q @ axes.T
     lo, hi = coords.min(0), coords.max(0)
     center = centroid + ((lo + hi) / 2) @ axes
@@ -172,6 +181,11 @@ def describe_component(
     if len(p) >= 3:
         (c1, c2), sec_radius = fit_circle(coords[:, 1:3])
         sec_center = centroid + np.array([(lo[0] + hi[0]) / 2, c1, c2]) @ axes
+        if along is not None:
+            # The slices' circles, fitted along the corrected axis, are the tube's own.
+            slices = _tube_slices(coords)
+            if slices is not None:
+                sec_radius = float(np.median(slices[:, 3]))
     lum = luminance[members]
     ring = _outer_ring(members, p, tree, ring_radius)
     ring = ring[observed[ring]]
@@ -194,6 +208,7 @@ def describe_component(
         edge_contrast=contrast,
         section_center=sec_center,
         section_radius=sec_radius,
+        section_from_slices=along is not None,
     )
 
 
@@ -209,6 +224,69 @@ def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float]:
     sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
     centre = sol[:2]
     return centre, float(np.sqrt(max(sol[2] + centre @ centre, 0.0)))
+
+
+#: Cross-sections a long thin component is cut into to find its axis, and the fewest
+#: vertices a cross-section needs for its circle.
+TUBE_SLICES = 8
+TUBE_SLICE_VERTICES = 5
+
+
+def _tube_slices(coords: np.ndarray) -> np.ndarray | None:
+    """Circles fitted to the cross-sections of a long thin component: ``(k, 5)`` rows of
+    position along ``axes[0]``, centre (two coordinates along ``axes[1]``, ``axes[2]``),
+    radius and vertex count; None for a component that is not long and thin (width
+    over a fifth of its length) or has under four usable cross-sections.
+
+    A tube seen from below shows a different side at each end (the cameras stand at
+    different places along it), so its vertices' principal axis tilts by a few tenths
+    of a degree (0.4 degree on a walk of `furnished`), which over 1.2 m widens it by
+    8 mm and throws the circle of its whole cross-section off (1.5 cm against the true
+    1.6); each short slice's circle still finds the axis (docs/lights.md).
+    """
+    ext = np.ptp(coords, axis=0) if len(coords) else np.zeros(3)
+    if ext[0] <= 0 or ext[1] > 0.2 * ext[0]:
+        return None
+    edges = np.linspace(coords[:, 0].min(), coords[:, 0].max(), TUBE_SLICES + 1)
+    part = np.clip(np.searchsorted(edges, coords[:, 0], side="right") - 1, 0, TUBE_SLICES - 1)
+    rows = []
+    for k in range(TUBE_SLICES):
+        m = part == k
+        if m.sum() >= TUBE_SLICE_VERTICES:
+            centre, radius = fit_circle(coords[m, 1:3])
+            if np.isfinite(radius) and radius > 0:
+                rows.append([(edges[k] + edges[k + 1]) / 2, *centre, radius, m.sum()])
+    if len(rows) < 4:
+        return None
+    out = np.asarray(rows, float)
+    # Slices whose circle is far from the others' (an end cap, a stray vertex) do not
+    # count; the rest must agree on a tube.
+    med = np.median(out[:, 3])
+    out = out[(out[:, 3] > 0.5 * med) & (out[:, 3] < 2.0 * med)]
+    return out if len(out) >= 4 else None
+
+
+def _axes_along(axes: np.ndarray, slices: np.ndarray) -> np.ndarray | None:
+    """``axes`` turned so that the first runs through the slices' circle centres (a
+    straight line fitted to them, weighted by their vertex counts); None where that
+    line is more than 3 degrees off, or a centre more than a fifth of the median radius
+    from it: not a tube the slices agree on (a fused scan's blob of tube and housing
+    gives circles that wander by centimetres)."""
+    w = np.sqrt(slices[:, 4])
+    f1 = np.polyfit(slices[:, 0], slices[:, 1], 1, w=w)
+    f2 = np.polyfit(slices[:, 0], slices[:, 2], 1, w=w)
+    b1, b2 = f1[0], f2[0]
+    off = np.hypot(
+        slices[:, 1] - np.polyval(f1, slices[:, 0]), slices[:, 2] - np.polyval(f2, slices[:, 0])
+    )
+    if np.hypot(b1, b2) > np.tan(np.radians(3.0)) or off.max() > 0.2 * np.median(slices[:, 3]):
+        return None
+    a0 = axes[0] + b1 * axes[1] + b2 * axes[2]
+    a0 /= np.linalg.norm(a0)
+    a1 = axes[1] - (axes[1] @ a0) * a0
+    a1 /= np.linalg.norm(a1)
+    a2 = np.cross(a0, a1)
+    return np.stack([a0, a1, a2 if a2 @ axes[2] >= 0 else -a2])
 
 
 def _min_area_axes(q: np.ndarray, axes: np.ndarray, steps: int = 90) -> np.ndarray:

@@ -81,7 +81,9 @@ def observe_vertices(
         frames,
         SimpleNamespace(vertices=np.ascontiguousarray(points, np.float64)),
         lut,
-        ObserveOptions(gradient_threshold=float("inf")),
+        # Not the footprint test: the points need not be a mesh, and the nearest pixel is
+        # what the clipped fraction counts.
+        ObserveOptions(gradient_threshold=float("inf"), footprint_test=False),
         caster=caster,
         progress=(lambda s, d, t: progress("observe", d, t)) if progress else None,
         normals=np.ascontiguousarray(normals, np.float64),

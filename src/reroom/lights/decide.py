@@ -176,6 +176,21 @@ def _near_window(p: np.ndarray, win: dict, margin: float) -> bool:
     )
 
 
+def _tube_section_fits(comp: Component) -> bool:
+    """Whether the circle fitted to a component's cross-section looks like a tube's: its
+    radius within a factor 2 of half the width, its centre within the width of the box's
+    middle."""
+    half_width = float(comp.extent[1] / 2)
+    r, c = comp.section_radius, comp.section_center
+    return bool(
+        half_width > 0
+        and np.isfinite(r)
+        and np.all(np.isfinite(c))
+        and 0.5 * half_width <= r <= 2.0 * half_width
+        and np.linalg.norm(c - comp.center) <= 2.0 * half_width
+    )
+
+
 def _tube_axis_point(comp: Component) -> np.ndarray:
     """The middle of a line light's axis: the centre of its cross-section's circle.
 
@@ -186,16 +201,8 @@ def _tube_axis_point(comp: Component) -> np.ndarray:
     looks like the tube (radius within a factor 2 of half the width, centre within the
     width of the box's middle); otherwise the box's middle.
     """
-    half_width = float(comp.extent[1] / 2)
-    r, c = comp.section_radius, comp.section_center
-    if (
-        half_width > 0
-        and np.isfinite(r)
-        and np.all(np.isfinite(c))
-        and 0.5 * half_width <= r <= 2.0 * half_width
-        and np.linalg.norm(c - comp.center) <= 2.0 * half_width
-    ):
-        return np.asarray(c, float)
+    if _tube_section_fits(comp):
+        return np.asarray(comp.section_center, float)
     return np.asarray(comp.center, float)
 
 
@@ -204,7 +211,11 @@ def make_light(typ: str, comp: Component, ev: dict, up: np.ndarray, reason: str)
     if typ == "line":
         d = comp.axes[0]
         half = d * comp.extent[0] / 2
-        radius = float(comp.extent[1] / 2)
+        # The cross-sections' circles where they agree on a tube (candidates._tube_slices);
+        # else half the width (a fused scan's blob of tube and housing: the whole
+        # section's circle is the blob's, and measured worse there, docs/lights.md).
+        slices = comp.section_from_slices and _tube_section_fits(comp)
+        radius = float(comp.section_radius if slices else comp.extent[1] / 2)
         perp = up - (up @ d) * d
         perp /= max(np.linalg.norm(perp), 1e-12)
         middle = _tube_axis_point(comp)
