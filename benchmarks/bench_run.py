@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 TARGET_S = 180.0
 SCAN_TARGET_S = 300.0
 
@@ -126,6 +128,26 @@ def evaluate(scan: Path, invert_dir: Path) -> None:
             f"| {light['name']} | {light.get('truth')} | {light.get('distance_m', 0):.3f} m | "
             f"{_pct(pe) if pe else '-'} | {_pct(ee) if ee else '-'} | {l2_text} |"
         )
+    _line_geometry(scan, invert_dir)
+
+
+def _line_geometry(scan: Path, invert_dir: Path) -> None:
+    """Each line light's radius, and how far its ends are from each true tube's axis."""
+    from reroom.rays.geometry import segment_distance
+
+    truth = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
+    tubes = [t for t in truth.get("lights", []) if t.get("type") == "line"]
+    ours = json.loads((invert_dir / "scene.json").read_text()).get("lights", [])
+    for light in (x for x in ours if x.get("type") == "line"):
+        g = light["geometry"]
+        ends = np.array([g["p0"], g["p1"]], float)
+        for t in tubes:
+            off = segment_distance(ends, t["p0"], t["p1"])
+            print(
+                f"line light {light['name']} against {t['name']}: radius "
+                f"{100 * float(g['radius']):.3f} cm (truth {100 * float(t['radius']):.3f}), "
+                f"ends {1000 * off.max():.2f} mm from its axis"
+            )
 
 
 if __name__ == "__main__":

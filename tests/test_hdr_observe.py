@@ -260,3 +260,15 @@ def test_mesh_pieces_label_connected_parts():
     assert np.all(pieces.vertex[: len(a.vertices)] == pieces.vertex[0])
     assert pieces.vertex[0] != pieces.vertex[-1]
     assert np.array_equal(pieces.face, pieces.vertex[mesh.faces[:, 0]])
+
+
+@pytest.mark.parametrize("radius", [0.0, -1.0, float("nan")])
+def test_footprint_radius_must_be_positive(box_scan, radius):
+    from reroom.errors import ReroomError
+
+    scan = load_scan(box_scan)
+    lut = response_lut("auto", scan.meta)
+    with pytest.raises(ReroomError, match="footprint_radius"):
+        collect_observations(
+            scan.frames[:1], scan.mesh, lut, ObserveOptions(footprint_radius=radius)
+        )

@@ -410,6 +410,15 @@ def _sample_tier(flag: np.uint8) -> int:
 
 
 @nb.njit(cache=True)
+def sample_tiers(flags: np.ndarray) -> np.ndarray:
+    """:func:`_sample_tier` of every sample."""
+    out = np.empty(flags.shape[0], np.int64)
+    for k in range(flags.shape[0]):
+        out[k] = _sample_tier(flags[k])
+    return out
+
+
+@nb.njit(cache=True)
 def _weighted_median(vals: np.ndarray, wts: np.ndarray, m: int) -> float:
     """The weighted median of ``vals[:m]`` (the first value whose cumulative weight
     reaches half the total, in ascending order)."""

@@ -442,6 +442,8 @@ def collect_observations(
     if opt.sampling not in SAMPLING:
         raise ReroomError(f"sampling must be one of {sorted(SAMPLING)}, not {opt.sampling!r}")
     lut64 = np.ascontiguousarray(lut, np.float64)
+    if opt.footprint_test and not (np.isfinite(opt.footprint_radius) and opt.footprint_radius > 0):
+        raise ReroomError(f"footprint_radius must be > 0 pixels, got {opt.footprint_radius}")
     if opt.depth_stride < 0:
         raise ReroomError(f"depth_stride must be >= 0 (0 = automatic), got {opt.depth_stride}")
     verts = np.ascontiguousarray(np.asarray(mesh.vertices, dtype=np.float64))
@@ -647,19 +649,18 @@ def _footprint_values(
     to_cam = frame.center - verts[vertex]
     cos = np.abs(np.sum(to_cam * normals[vertex], axis=1)) / np.linalg.norm(to_cam, axis=1)
     reach = opt.footprint_radius * depth / k.fx / np.maximum(cos, 0.2)
-    near = np.linalg.norm(np.where(hits.hit[:, None], hits.points, np.inf) - x, axis=1)
-    facing = np.sum(hits.normals * nv, axis=1) > 0.5
+    offset = np.where(hits.hit[:, None], hits.points - x, np.inf)
+    turn = np.sum(hits.normals * nv, axis=1)  # NaN where the ray missed
+    near = np.linalg.norm(offset, axis=1)
     # A separate piece of mesh close by (a light's emitter inside its housing, a bulb in
     # its shade) is another surface, unless it continues the vertex's plane (a wall
     # meshed in pieces around a window): within a quarter of a pixel of it.
     same_piece = pieces.face[np.where(hits.hit, hits.face, 0)] == np.repeat(
         pieces.vertex[vertex], p
     )
-    off_plane = np.abs(np.sum((np.where(hits.hit[:, None], hits.points, 0.0) - x) * nv, axis=1))
-    coplanar = (off_plane <= np.repeat(0.25 * depth / k.fx, p)) & (
-        np.sum(hits.normals * nv, axis=1) > 0.95
-    )
-    owned = hits.hit & facing & (same_piece | coplanar) & (near <= np.repeat(reach, p))
+    off_plane = np.abs(np.sum(np.where(hits.hit[:, None], offset, 0.0) * nv, axis=1))
+    coplanar = (off_plane <= np.repeat(0.25 * depth / k.fx, p)) & (turn > 0.95)
+    owned = hits.hit & (turn > 0.5) & (same_piece | coplanar) & (near <= np.repeat(reach, p))
     owned = owned.reshape(n, p)
     w = weight * owned
     total = w.sum(axis=1)

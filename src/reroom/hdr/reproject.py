@@ -22,12 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reroom.hdr import _kernels as K
-from reroom.hdr.observe import (
-    EDGE_FLAGS,
-    FOREIGN_FOOTPRINT,
-    Observations,
-    decode_linear,
-)
+from reroom.hdr.observe import Observations, decode_linear
 from reroom.hdr.solve import hat_confidence
 
 __all__ = [
@@ -103,8 +98,8 @@ def sample_tiers(flags: np.ndarray) -> np.ndarray:
     0: all its pixels see another surface than its vertex's
     (:data:`~reroom.hdr.observe.FOREIGN_FOOTPRINT`), never used.
     """
-    f = np.asarray(flags, np.uint8)
-    return np.where((f & FOREIGN_FOOTPRINT) != 0, 0, np.where((f & EDGE_FLAGS) == 0, 2, 1))
+    # One rule for both: the reprojection kernel applies the same function per sample.
+    return K.sample_tiers(np.ascontiguousarray(flags, np.uint8))
 
 
 def reproject_radiance(
