@@ -59,6 +59,8 @@ import numpy as np
 from reroom.hdr.linearize import LUMA, response_lut
 from reroom.hdr.observe import (
     EDGE_FLAGS,
+    FOREIGN_FOOTPRINT,
+    MIXED_FOOTPRINT,
     ObserveOptions,
     collect_observations,
     decode_linear,
@@ -191,6 +193,12 @@ def main() -> None:
             return " / ".join(f"{x:.2f}" for x in clipped[m].mean(0)) if m.any() else "-"
 
         print(f"\n### sampling `{sampling}`, footprint test {footprint}\n")
+        edge = (obs.flags & EDGE_FLAGS) != 0
+        print(
+            f"{len(obs)} samples, {100 * edge.mean():.1f} % near an edge (footprint-tested), "
+            f"{int(np.count_nonzero(obs.flags & MIXED_FOOTPRINT))} partly and "
+            f"{int(np.count_nonzero(obs.flags & FOREIGN_FOOTPRINT))} wholly on another surface\n"
+        )
         print("(1) per band of true luminance: HDR / truth (r / g / b), clipped clean samples\n")
         print("| band | vertices | HDR / truth | clipped samples |\n|---|---|---|---|")
         print("\n".join(_band_rows(est, tru, key, base, clip_share)))
