@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 
 from reroom.cli import app
 from reroom.hdr.observe import Observations
+from reroom.layout.meshops import vertex_adjacency
 from reroom.lights import (
     LightsError,
     LightSet,
@@ -29,7 +30,7 @@ from reroom.lights import (
     parse_point,
     write_lights,
 )
-from reroom.lights.candidates import bright_components, describe_component, mesh_adjacency
+from reroom.lights.candidates import bright_components, describe_component
 from reroom.lights.consistency import view_consistency
 from reroom.lights.evaluate import rectangle_iou
 from reroom.lights.lightset import Light, Rejected
@@ -284,7 +285,7 @@ def test_components_shape_and_edge_contrast() -> None:
     lum[square] = 5.0
     r = np.linalg.norm(v[:, :2] - [1.5, 1.5], axis=1)
     lum += 2.0 * np.exp(-0.5 * (r / 0.2) ** 2)  # a soft pool
-    adj = mesh_adjacency(mesh.faces, len(v))
+    adj = vertex_adjacency(mesh.faces, len(v))
     _, members = bright_components(adj, lum > 1.0)
     assert len(members) == 2
     normals = np.tile([0.0, 0.0, -1.0], (len(v), 1))

@@ -42,13 +42,12 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 
 from reroom.errors import ReroomError
 from reroom.hdr import _kernels as K
 from reroom.hdr.linearize import LUMA
 from reroom.rays import RayCaster
+from reroom.rays.geometry import mesh_pieces
 from reroom.scan import Frame
 
 __all__ = [
@@ -363,10 +362,7 @@ class MeshPieces:
     def build(mesh) -> MeshPieces:
         """Label the pieces of ``mesh`` (vertices joined by its faces' edges)."""
         f = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
-        n = len(mesh.vertices)
-        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        graph = sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), (n, n))
-        _, labels = csgraph.connected_components(graph, directed=False)
+        labels = mesh_pieces(f, len(mesh.vertices))
         return MeshPieces(labels, labels[f[:, 0]] if len(f) else np.zeros(0, np.int64))
 
 

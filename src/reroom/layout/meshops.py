@@ -11,6 +11,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+# Re-exported: the layout and later stages import it from here.
+from reroom.rays.geometry import vertex_adjacency  # noqa: F401
+
 
 def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F, 3)`` cross products of the face edges: normal times twice the area."""
@@ -51,17 +54,6 @@ def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
     tri = v[f]
     e = np.concatenate([tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2]])
     return float(np.sqrt(np.einsum("ij,ij->i", e, e)).mean())
-
-
-def vertex_adjacency(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
-    """Symmetric ``(V, V)`` boolean adjacency of vertices sharing an edge (no self loops)."""
-    i = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])
-    j = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
-    a = sp.coo_matrix((np.ones(len(i), bool), (i, j)), shape=(n_vertices, n_vertices)).tocsr()
-    a = (a + a.T).tocsr()
-    a.setdiag(False)
-    a.eliminate_zeros()
-    return a
 
 
 def harmonic_fill(values: np.ndarray, fixed: np.ndarray, pairs: np.ndarray) -> np.ndarray:

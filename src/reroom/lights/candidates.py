@@ -23,26 +23,7 @@ __all__ = [
     "bright_components",
     "describe_component",
     "fit_circle",
-    "mesh_adjacency",
-    "vertex_areas",
 ]
-
-
-def mesh_adjacency(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
-    """Symmetric ``(V, V)`` vertex adjacency of a triangle mesh (boolean CSR)."""
-    f = np.asarray(faces, np.int64)
-    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
-    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
-    a = sp.coo_matrix((np.ones(len(i), bool), (i, j)), shape=(n_vertices, n_vertices)).tocsr()
-    return (a + a.T).astype(bool).tocsr()
-
-
-def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(V,)`` one third of the area of every face around each vertex (m²)."""
-    v = np.asarray(vertices, float)
-    f = np.asarray(faces, np.int64)
-    a = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    return np.bincount(f.ravel(), np.repeat(a / 3.0, 3), minlength=len(v))
 
 
 def bright_components(

@@ -41,12 +41,11 @@ from scipy.spatial import cKDTree
 from reroom.hdr.linearize import LUMA, response_lut
 from reroom.hdr.observe import vertex_normals
 from reroom.io.mesh import read_ply
+from reroom.layout.meshops import vertex_adjacency, vertex_areas
 from reroom.lights.candidates import (
     Component,
     bright_components,
     describe_component,
-    mesh_adjacency,
-    vertex_areas,
 )
 from reroom.lights.consistency import (
     clipped_fraction,
@@ -268,7 +267,7 @@ def detect_lights(
     aligned = room.to_aligned(verts)
     up = room.up
 
-    adjacency = mesh_adjacency(faces, len(verts))
+    adjacency = vertex_adjacency(faces, len(verts))
     caster = RayCaster(scan.mesh)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # unreadable frames were reported by `reroom hdr`
