@@ -331,3 +331,92 @@ def test_shadow_clearance_lets_the_fixture_not_shadow_its_light(tmp_path: Path, 
     np.testing.assert_allclose(got[0.3][s], free[s], rtol=0.03)
     assert np.all(got[0.3][b] == 0.0)
     np.testing.assert_allclose(got[0.3][e], free[e], rtol=0.03)
+
+
+def test_an_outlined_area_light_renders_its_outline(tmp_path: Path) -> None:
+    """A fused panel (ceiling vertices of one surface) with ``reroom invert``'s outline:
+    the emitter is the part of the faces touching it inside the outline, a hair in front
+    of the ceiling, facing the room; the rim faces the room leaves out are surface."""
+    from reroom.edit.model import OUTLINE_LIFT
+    from reroom.io.mesh import read_ply
+
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    on = (np.abs(v[:, 0] - 2.0) <= 0.5 + 1e-9) & (np.abs(v[:, 1] - 1.5) <= 0.5 + 1e-9)
+    on &= v[:, 2] > 2.5 - 1e-9
+    scan = _model(tmp_path, [])
+    (scan / "lights").mkdir()
+    np.savez(scan / "lights" / "lights_vertices.npz", light_id=np.where(on, 0, -1))
+    corners = [[1.5, 1.0, 2.5], [2.5, 1.0, 2.5], [2.5, 2.0, 2.5], [1.5, 2.0, 2.5]]
+    geo = {"light_index": 0, "normal": [0.0, 0.0, -1.0], "area": 1.0, "outline": corners}
+    panel = {"name": "panel", "type": "area", "geometry": geo, "radiance": [5.0, 5.0, 5.0]}
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    doc["lights"] = [panel]
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    scene = model_scene(scan)
+    emitter = read_ply(scene["light_00"]["filename"])
+    assert emitter.area == pytest.approx(1.0, rel=1e-9)
+    np.testing.assert_allclose(emitter.vertices[:, 2], 2.5 - OUTLINE_LIFT, atol=1e-12)
+    assert np.all(emitter.face_normals[:, 2] < -0.999)  # emits into the room
+    rim = read_ply(scene["light_00_rim"]["filename"])
+    sel = on[f].sum(axis=1) >= 2
+    assert len(rim.faces) == int((sel & ~on[f].all(axis=1)).sum()) > 0
+    assert "albedo" in rim.vertex_attributes
+    room = read_ply(scene["room"]["filename"])
+    assert len(room.faces) == len(f) - int(sel.sum())
+    # Without an outline (an older scene.json): the faces of two light corners, as before.
+    del geo["outline"]
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    old = model_scene(scan)
+    assert "light_00_rim" not in old
+    assert read_ply(old["light_00"]["filename"]).area > 1.2
+
+
+def test_a_line_light_with_a_radius_glows_on_its_cylinder(tmp_path: Path) -> None:
+    """A fused scan's tube is a block twice its width: the glow is drawn on the cylinder
+    of the line's fitted radius, where the scan saw it glow; without a radius, or where the
+    scanned faces lie within 1.5 radii of the line, on the scanned faces."""
+    from reroom.edit.model import TUBE_SECTIONS
+    from reroom.io.mesh import read_ply
+    from reroom.rays.geometry import segment_distance
+    from reroom.render.glow import split_glow
+
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    p0, p1 = np.array([1.4, 1.5, 2.3]), np.array([2.6, 1.5, 2.3])
+    block = trimesh.creation.box(extents=(1.2, 0.075, 0.075))  # the fused block
+    block.apply_translation((p0 + p1) / 2)
+    verts = np.vstack([v, block.vertices])
+    faces = np.vstack([f, np.asarray(block.faces) + len(v)])
+    light = np.zeros(len(verts), np.uint8)
+    light[len(v) :] = 1
+    scan = tmp_path / "scan"
+    (scan / "invert").mkdir(parents=True)
+    write_ply(
+        scan / "invert" / "albedo.ply",
+        trimesh.Trimesh(verts, faces, process=False),
+        {"albedo": np.full((len(verts), 3), ALBEDO, np.float32), "light": light},
+    )
+    geo = {"p0": p0.tolist(), "p1": p1.tolist(), "d_perp": [0.0, 0.0, 1.0], "radius": 0.016}
+    line = {
+        "name": "tube",
+        "type": "line",
+        "geometry": geo,
+        "color": [1.0, 1.0, 1.0],
+        "distribution": {"basis": "inclination", "bins": 8, "profile": [1.0] * 8},
+    }
+    doc = {"format": "reroom-invert", "version": 1, "lights": [line], "albedo_file": "albedo.ply"}
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    _, glows = split_glow(model_scene(scan))
+    cyl = read_ply(glows["glow_00"]["filename"])
+    side = np.abs(segment_distance(cyl.vertices, p0, p1) - 0.016) < 1e-6
+    assert side.sum() >= 2 * TUBE_SECTIONS
+    np.testing.assert_allclose(cyl.bounds[:, 0], [1.4, 2.6], atol=1e-6)
+    # Without a radius, or with one as wide as the block (the scan holds the tube): the
+    # scanned faces.
+    for radius in (None, 0.04):
+        if radius is None:
+            del geo["radius"]
+        else:
+            geo["radius"] = radius
+        (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+        _, glows = split_glow(model_scene(scan))
+        assert len(read_ply(glows["glow_00"]["filename"]).faces) == len(block.faces)

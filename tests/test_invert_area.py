@@ -204,3 +204,84 @@ def test_bad_input():
     with pytest.raises(ValueError, match="non-zero"):
         area_light_transfer(caster, mesh, on, p, np.zeros_like(n))
     assert np.all(area_light_transfer(caster, mesh, np.zeros_like(on), p, n) == 0)
+
+
+def fused_ceiling(h: float, light_half: float, step: float):
+    """A floor under one ceiling surface (a grid facing down) whose vertices within
+    ``light_half`` of the centre are the light's: a depth-fused panel, no piece of its
+    own, so its rim triangles join it to the ceiling around it."""
+    floor = grid_plane(2.0, 0.25)
+    ceiling = grid_plane(1.2, step, z=h, up=False)
+    mesh = trimesh.util.concatenate([floor, ceiling])
+    on = np.zeros(len(mesh.vertices), bool)
+    c = mesh.vertices[len(floor.vertices) :]
+    on[len(floor.vertices) :] = np.abs(c[:, :2]).max(axis=1) <= light_half + 1e-9
+    recv = np.flatnonzero(
+        ~on & (mesh.vertices[:, 2] < 0.5) & (np.abs(mesh.vertices[:, :2]).max(1) <= 1.5)
+    )
+    return mesh, on, recv
+
+
+def test_area_region_outline_and_containment():
+    from reroom.invert.area_region import area_region
+
+    rng = np.random.default_rng(3)
+    pts = np.column_stack(
+        [rng.uniform(-0.3, 0.3, 500), rng.uniform(-0.2, 0.2, 500), np.full(500, 2.7)]
+    )
+    pts[:4, :2] = [[-0.3, -0.2], [0.3, -0.2], [0.3, 0.2], [-0.3, 0.2]]
+    region = area_region(pts, [0.0, 0.0, -1.0])
+    assert region is not None
+    assert region.area == pytest.approx(0.24, rel=1e-9)
+    inside = region.contains(
+        [[0.0, 0.0, 2.7], [0.29, 0.19, 2.5], [0.31, 0.0, 2.7], [0.0, -0.21, 2.7]]
+    )
+    np.testing.assert_array_equal(inside, [True, True, False, False])
+    assert area_region(pts[:2], [0.0, 0.0, -1.0]) is None  # two points span no outline
+    line = np.column_stack([np.linspace(0, 1, 5), np.zeros(5), np.full(5, 2.7)])
+    assert area_region(line, [0.0, 0.0, -1.0]) is None
+
+
+def test_clip_to_region_keeps_the_inside_on_each_face_in_its_winding():
+    from reroom.invert.area_region import area_region, clip_to_region
+
+    corners = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]])
+    region = area_region(corners, [0.0, 0.0, -1.0])
+    # A tilted triangle half across the square's edge x = 1, wound to face down.
+    tri = np.array([[0.5, 0.2, 1.0], [1.5, 0.8, 1.2], [1.5, 0.2, 1.2]])
+    v, f = clip_to_region(tri, [[0, 1, 2]], region)
+    piece = trimesh.Trimesh(v, f, process=False)
+    whole = trimesh.Trimesh(tri, [[0, 1, 2]], process=False)
+    # Inside: the part with x <= 1, on the triangle's own (tilted) plane.
+    assert v[:, 0].max() <= 1.0 + 1e-9
+    np.testing.assert_allclose((v - tri[0]) @ whole.face_normals[0], 0.0, atol=1e-12)
+    flat_piece = piece.area * abs(piece.face_normals[:, 2]).mean()
+    assert flat_piece == pytest.approx(0.5 * 0.5 * 0.3, rel=1e-9)  # its shadow on z: x 0.5-1
+    assert np.all(piece.face_normals @ whole.face_normals[0] > 0.999)  # winding kept
+    v2, f2 = clip_to_region(tri + [5.0, 0.0, 0.0], [[0, 1, 2]], region)
+    assert len(v2) == 0 and len(f2) == 0
+
+
+def test_a_fused_panel_emits_from_its_outline_not_half_its_rim():
+    """The fused-scan case (docs/invert.md, "An area light's outline"): the light's
+    vertices are a 0.6 m square of one ceiling surface; its barycentric share reaches half
+    a rim triangle further (0.7 m at a 0.1 m grid), its outline is the square."""
+    from reroom.invert.area_region import area_region
+
+    h, half, step = 2.0, 0.3, 0.1
+    mesh, on, recv = fused_ceiling(h, half, step)
+    caster = RayCaster(mesh)
+    nrm = vertex_normals(mesh)
+    region = area_region(mesh.vertices[on], [0.0, 0.0, -1.0])
+    assert region.area == pytest.approx(0.36, rel=1e-9)
+    outlined = area_light_transfer(
+        caster, mesh, on, mesh.vertices[recv], nrm[recv], 1024, region=region
+    )
+    shared = area_light_transfer(caster, mesh, on, mesh.vertices[recv], nrm[recv], 1024)
+    expected = expected_ff(mesh, recv, half, 0.0, h)
+    np.testing.assert_allclose(outlined, expected, rtol=0.03)
+    assert abs(outlined.sum() / expected.sum() - 1) < 0.005
+    # The barycentric share: the square and half a step more on every side, 0.48 m^2
+    # against 0.36 (a third more light, a little more still at the near receivers).
+    ratio = shared.sum() / outlined.sum()
+    assert 1.3 < ratio < 1.42

@@ -656,3 +656,40 @@ def test_render_window_cells_give_the_renders_a_finer_window(tmp_path: Path) -> 
     assert any("render window window0: refitted" in w for w in fine.warnings)
     seen = np.isfinite(fine.albedo).all(axis=1) & np.isfinite(coarse.albedo).all(axis=1)
     assert seen.sum() > 100 and not np.allclose(fine.albedo[seen], coarse.albedo[seen])
+
+
+def test_an_area_light_is_the_outline_of_its_vertices(tmp_path: Path) -> None:
+    """``area_outline``: scene.json gives the area light its vertices' convex outline on
+    its plane, counts its power over the outline's area and keeps the lights stage's area;
+    without the option the geometry is the lights stage's."""
+    from scipy.spatial import ConvexHull
+
+    from reroom.lights.lightset import Light, LightSet, write_lights
+
+    scan = _box_scan(tmp_path, radiance=0.3)
+    v = np.asarray(read_ply(scan / "hdr" / "hdr_mesh.ply").vertices)
+    on = (np.abs(v[:, 0] - 1.5) <= 0.5) & (np.abs(v[:, 1] - 1.25) <= 0.5) & (v[:, 2] > 2.4 - 1e-6)
+    assert on.sum() >= 4
+    geom = {"centroid": [1.5, 1.25, 2.4], "normal": [0.0, 0.0, -1.0], "area": 0.5}
+    ids = np.where(on, 0, -1).astype(np.int32)
+    write_lights(
+        LightSet([Light("panel", "area", "user", geom, {}, "test")], [], ids), scan / "lights"
+    )
+    hull = ConvexHull(v[on][:, :2]).volume  # a 2-D hull's "volume" is its area
+    run_invert(scan, None, dataclasses.replace(FAST, photo_color=0.0))
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    panel = next(e for e in doc["lights"] if e["name"] == "panel")
+    g = panel["geometry"]
+    assert g["area"] == pytest.approx(hull, rel=1e-5) and g["area_of_vertices"] == 0.5
+    outline = np.asarray(g["outline"])
+    assert len(outline) >= 3
+    np.testing.assert_allclose(outline[:, 2], 2.4, atol=1e-6)
+    np.testing.assert_allclose(
+        panel["power"], np.pi * np.asarray(panel["radiance"]) * hull, rtol=1e-4
+    )
+    run_invert(
+        scan, tmp_path / "shares", dataclasses.replace(FAST, photo_color=0.0, area_outline=False)
+    )
+    doc = json.loads((tmp_path / "shares" / "scene.json").read_text())
+    g = next(e for e in doc["lights"] if e["name"] == "panel")["geometry"]
+    assert "outline" not in g and g["area"] == 0.5

@@ -11,9 +11,12 @@ renders it.
   interpolation of their known neighbours over the mesh (:func:`fill_unknown_albedo`);
   non-physical values (> 1) are clipped to ``max_albedo`` for rendering only
   (``albedo.ply`` keeps them).
-* **Area lights**: the faces of each area light's own vertices (at least two of three, so
-  the light ends half-way into its rim triangles as in the transfer), emitting the solved
-  radiance on their front side.
+* **Area lights**: with an ``outline`` in their geometry (``reroom invert``'s
+  ``area_outline``), the part of the faces touching the light's vertices inside it, as
+  the transfer integrated it, a millimetre in front of the scanned surface, and the
+  light's rim faces behind it as surface; without one, the faces of the light's own
+  vertices (at least two of three, so the light ends half-way into its rim triangles as
+  in the transfer then). Either emits the solved radiance on its front side.
 * **Windows**: a black rectangle on the window's opening carrying a ``reroom_portal``
   emitter that shows the window's map ``environment_exr`` (``window_<name>.exr``: the
   solved cube-map cells shaped within each cell by the photos' pixels seen through the
@@ -32,7 +35,9 @@ renders it.
   light is in the solved distribution, and their mesh would enclose the emitter. Each
   point or line light within ``GLOW_REACH`` of them gets them as a ``reroom_glow`` entry,
   which the renderer shows glowing with the radiance the solved light implies
-  (:mod:`reroom.render.glow`).
+  (:mod:`reroom.render.glow`). A line light with a fitted radius whose scanned faces lie
+  further out (a fused scan's block, twice the tube's width) glows on the cylinder of
+  that radius instead.
 """
 
 from __future__ import annotations
@@ -254,11 +259,18 @@ def model_scene(
             if not sel.any():
                 continue
             emitting |= sel
-            path = write_ply(
-                work / f"light_{k:02d}.ply",
-                trimesh.Trimesh(vertices, faces[sel], process=False),
-                {},
-            )
+            shape = _area_emitter_shape(vertices, faces, members, sel, geo, albedo)
+            path = write_ply(work / f"light_{k:02d}.ply", shape[0], {})
+            if shape[1] is not None:
+                rim_path = write_ply(work / f"light_{k:02d}_rim.ply", *shape[1])
+                scene[f"light_{k:02d}_rim"] = {
+                    "type": "ply",
+                    "filename": str(rim_path),
+                    "bsdf": {
+                        "type": "diffuse",
+                        "reflectance": {"type": "mesh_attribute", "name": "vertex_albedo_color"},
+                    },
+                }
             scene[f"light_{k:02d}"] = {
                 "type": "ply",
                 "filename": str(path),
@@ -356,6 +368,96 @@ def model_scene(
     return scene
 
 
+#: Metres an area light's outline pieces sit in front of the scanned faces they cut
+#: (towards the room), so that the ring of those faces outside the outline, rendered as
+#: surface behind them, never hides them.
+OUTLINE_LIFT = 1e-3
+
+
+def _area_emitter_shape(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    members: np.ndarray,
+    sel: np.ndarray,
+    geo: dict[str, Any],
+    albedo: np.ndarray,
+) -> tuple[trimesh.Trimesh, tuple[trimesh.Trimesh, dict[str, np.ndarray]] | None]:
+    """An area light's emitting mesh, and the surface ring around it (or None).
+
+    Without an ``outline`` (a clean scan, an older ``scene.json``) the light is its faces
+    with at least two light corners, as before. With one (``reroom invert``'s
+    ``area_outline``) it is the part of every face touching a light vertex inside the
+    outline, lifted ``OUTLINE_LIFT`` towards the room, as the transfer integrated it;
+    the faces with two light corners that the room leaves out are then drawn as surface
+    behind it (with the room's albedo), where they reach past the outline.
+    """
+    from reroom.invert.area_region import area_region, clip_to_region
+
+    outline = geo.get("outline")
+    region = None
+    if outline is not None:
+        region = area_region(np.asarray(outline, float), geo.get("normal", [0.0, 0.0, -1.0]))
+    if region is None:
+        return trimesh.Trimesh(vertices, faces[sel], process=False), None
+    touching = members[faces].any(axis=1)
+    pv, pf = clip_to_region(vertices, faces[touching], region)
+    if len(pf) == 0:
+        return trimesh.Trimesh(vertices, faces[sel], process=False), None
+    emitter = trimesh.Trimesh(pv + OUTLINE_LIFT * region.normal, pf, process=False)
+    rim_faces = faces[sel & ~members[faces].all(axis=1)]
+    if len(rim_faces) == 0:
+        return emitter, None
+    used, local = np.unique(rim_faces, return_inverse=True)
+    rim = trimesh.Trimesh(vertices[used], local.reshape(-1, 3), process=False)
+    return emitter, (rim, {"albedo": albedo[used].astype(np.float32)})
+
+
+#: Sides of the cylinder a line light's glow is drawn on (:func:`_fitted_tube`).
+TUBE_SECTIONS = 32
+
+
+def _fitted_tube(light: dict[str, Any]) -> trimesh.Trimesh | None:
+    """A line light's glowing surface as the cylinder of its fitted radius (None for a
+    light without one, or a point light).
+
+    A depth-fused scan holds a tube as a block about twice its width (the issue's
+    300-frame fused `furnished`: 7.5 cm wide, the tube 3.2 cm), and a glow drawn on
+    that block spread the tube's light over twice its width at half its radiance: from a
+    new camera that saw the tube, its pixels were 2.8x too dim and held 99 % of the
+    view's squared error. The line's radius (from the photos' stripe or the
+    cross-sections, ``geometry.radius``) is the tube's own; on a clean scan the cylinder
+    is the scanned tube.
+    """
+    if light.get("type") != "line":
+        return None
+    g = light.get("geometry", {})
+    radius = float(g.get("radius", 0.0) or 0.0)
+    p0, p1 = (
+        np.asarray(g.get("p0", [np.nan] * 3), float),
+        np.asarray(g.get("p1", [np.nan] * 3), float),
+    )
+    if not (radius > 0 and np.all(np.isfinite(p0)) and np.all(np.isfinite(p1))):
+        return None
+    if not np.linalg.norm(p1 - p0) > 2.0 * radius:
+        return None
+    return trimesh.creation.cylinder(radius=radius, segment=[p0, p1], sections=TUBE_SECTIONS)
+
+
+#: Scanned glowing faces whose vertices lie, in the median, further than this many fitted
+#: radii from a line light's segment are not the tube's shape (a fused scan's block).
+TUBE_WIDER = 1.5
+
+
+def _wider_than(points: np.ndarray, light: dict[str, Any]) -> bool:
+    """Whether the scanned glowing faces' vertices ``points`` lie, in the median, more
+    than ``TUBE_WIDER`` fitted radii from the line light's segment: then the scan does not
+    hold the tube's shape, and its glow is drawn on the fitted cylinder. A clean scan's
+    tube (its vertices on the tube, one radius out) keeps its own faces."""
+    g = light["geometry"]
+    d = segment_distance(points, np.asarray(g["p0"], float), np.asarray(g["p1"], float))
+    return bool(np.median(d) > TUBE_WIDER * float(g["radius"]))
+
+
 def _add_glows(
     scene: dict[str, Any],
     lights: list[dict[str, Any]],
@@ -397,11 +499,11 @@ def _add_glows(
         if centre is None or key not in scene or len(sel) == 0:
             continue
         used, local = np.unique(faces[sel], return_inverse=True)
-        path = write_ply(
-            work / f"glow_{k:02d}.ply",
-            trimesh.Trimesh(vertices[used], local.reshape(-1, 3), process=False),
-            {},
-        )
+        shape = trimesh.Trimesh(vertices[used], local.reshape(-1, 3), process=False)
+        tube = _fitted_tube(lights[k])
+        if tube is not None and _wider_than(shape.vertices, lights[k]):
+            shape = tube
+        path = write_ply(work / f"glow_{k:02d}.ply", shape, {})
         scene[f"glow_{k:02d}"] = glow_entry(str(path), key, centre)
 
 

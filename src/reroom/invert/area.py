@@ -29,6 +29,7 @@ import trimesh
 from numpy.typing import ArrayLike
 
 from reroom.invert._kernels import area_samples
+from reroom.invert.area_region import AreaRegion
 from reroom.invert.direct import receiver_arrays
 from reroom.rays import RayCaster
 
@@ -50,6 +51,7 @@ def area_light_transfer(
     *,
     seed: int = 0,
     offset: float | None = None,
+    region: AreaRegion | None = None,
 ) -> np.ndarray:
     """Irradiance at each point per unit radiance of an area light (``integral cos dw``).
 
@@ -70,6 +72,10 @@ def area_light_transfer(
     offset:
         Metres the shadow rays start above the receiver along its normal;
         default ``caster.eps``.
+    region:
+        The light's outline (:func:`reroom.invert.area_region.area_region`): the light
+        is then the part of the triangles touching its vertices that projects inside
+        it, instead of the barycentric share of their light corners.
 
     Returns
     -------
@@ -100,6 +106,10 @@ def area_light_transfer(
         return out
     tri = verts[faces[keep]]
     share3, mean_share = share3[keep], mean_share[keep]
+    if region is not None:
+        # Whole triangles, each sample then in or out of the outline.
+        share3 = np.ones_like(share3)
+        mean_share = np.ones_like(mean_share)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     double_area = np.linalg.norm(cross, axis=1)
     front = cross / np.maximum(double_area, 1e-300)[:, None]
@@ -125,6 +135,8 @@ def area_light_transfer(
         value, y = area_samples(
             p[b0:b1], n[b0:b1], tri, front, share3, mean_share, f, r1, r2, samples
         )
+        if region is not None:
+            value[~region.contains(y)] = 0.0
         live = np.flatnonzero(value > 0)
         if len(live):
             rec = b0 + live // samples

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 
 from reroom.errors import ReroomError, ScanError
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
+from reroom.invert.area_region import area_region
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
 from reroom.invert.fill import DEFAULT_FILL_ALBEDO, bounce_fill
@@ -196,6 +197,12 @@ class InvertOptions:
         Where the scan does not resolve a tube's fixture, take the tube's axis and radius
         and a trough around it from the photos (:mod:`reroom.invert.line_photos`)
         instead of dropping the shape prior.
+    area_outline : bool
+        An area light is the part of the mesh around its vertices that lies inside their
+        convex outline on its plane (:mod:`reroom.invert.area_region`), in the transfer,
+        its power and its rendering; False: the barycentric share of its vertices, which
+        on a fused scan reaches half a row of triangles past the row of vertices that
+        is already past the panel's edge (docs/invert.md, "An area light's outline").
     photo_color : float
         Weight of a prior on each line and area light's colour read from the
         unsaturated edge of its clipped image in the photos
@@ -416,6 +423,7 @@ class InvertOptions:
     line_shape_prior: float = 1e5
     line_fixture_samples: int = 64
     line_photo_fixture: bool = True
+    area_outline: bool = True
     photo_color: float = 1.0
     point_shape_prior: float = 1e4
     rays_per_receiver: int = 512
@@ -966,6 +974,18 @@ def _window_photo_priors(
     return out
 
 
+def _outline_geometry(region, vertex_area: float) -> dict[str, Any]:
+    """An area light's geometry entries for its outline (:mod:`reroom.invert.area_region`):
+    its corners in 3-D, its projected area (what its power is counted over) and the
+    area of its vertices' shares it replaces."""
+    corners = region.origin + region.polygon[:, :1] * region.u + region.polygon[:, 1:] * region.v
+    return {
+        "outline": np.round(corners, 6).tolist(),
+        "area": round(region.area, 6),
+        "area_of_vertices": round(vertex_area, 6),
+    }
+
+
 def emitter_classes(
     light_list: list, vertex_light_id: np.ndarray, points: np.ndarray, fixture_margin: float
 ) -> tuple[list, list, np.ndarray, np.ndarray, np.ndarray]:
@@ -1205,6 +1225,17 @@ def run_invert(
                 color_prior_weight=options.photo_color,
             )  # fmt: skip
         )
+        geometry = dict(light.geometry)
+        region = None
+        if options.area_outline and np.any(area_of == k):
+            region = area_region(pts[area_of == k], geometry.get("normal", [0.0, 0.0, -1.0]))
+            if region is None:
+                notes.append(
+                    f"area light {light.name!r}: its vertices span no outline on its plane: "
+                    "it ends half-way into its rim triangles"
+                )
+            else:
+                geometry.update(_outline_geometry(region, float(geometry.get("area", 0.0))))
         # Integrated over the light's surface, not counted from the hemisphere rays:
         # those are unbiased but far too noisy for a small light (reroom.invert.area).
         f_area = area_light_transfer(
@@ -1215,13 +1246,14 @@ def run_invert(
             n_recv,
             options.area_samples,
             seed=options.seed + k,
+            region=region,
         )
         columns.append(f_area[:, None])
         info.append(
             {
                 "name": light.name,
                 "type": "area",
-                "geometry": light.geometry,
+                "geometry": geometry,
                 **({} if color is None else {"color_from_photos": color.summary()}),
             }
         )

@@ -1,0 +1,166 @@
+"""Where a detected area light's surface ends: the convex outline of its vertices.
+
+A light's vertices (:mod:`reroom.lights`) are those the photos saw bright. On a clean
+mesh they are the panel's own piece, and the emitter is their faces. On a depth-fused
+mesh the panel is part of one surface with the ceiling around it, and the bright set
+reaches one row of vertices past the panel's edge (a vertex whose footprint the panel
+covers in part is clipped too). The barycentric rule of the transfers (a point of a
+triangle is light by the share of its light corners, so the light ends half-way into
+its rim triangles) then adds another half row: on the 300-frame 320x180 fused
+`furnished` scan the 0.60 x 0.60 m panel emitted from 0.40 m^2, 11 % too much, and the
+solve gave the panel +4 % and the tube beside it +6 % of power (docs/invert.md,
+"An area light's outline").
+
+Here the emitter is the part of the mesh around the light whose projection onto the
+light's plane lies inside the convex hull of its vertices' projections: on the fused
+scan 0.362 m^2 (0.6014 x 0.6014 extent), on a clean mesh the panel's faces exactly.
+Convex: a panel, a disc, a skylight; a light of another shape keeps its hull, which a
+user can correct by hand. scipy's ``ConvexHull`` (Qhull) and matplotlib's ``Path``
+containment test do the geometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.spatial import ConvexHull, QhullError
+
+__all__ = ["AreaRegion", "area_region", "clip_to_region"]
+
+
+@dataclass(frozen=True)
+class AreaRegion:
+    """A planar convex outline: ``origin + a u + b v`` for ``(a, b)`` inside ``polygon``."""
+
+    origin: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    polygon: np.ndarray  # (K, 2), counter-clockwise
+
+    @property
+    def area(self) -> float:
+        """The outline's area (m²): the light's area projected on its plane."""
+        x, y = self.polygon[:, 0], self.polygon[:, 1]
+        return float(0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+    def plane_coordinates(self, points: ArrayLike) -> np.ndarray:
+        """``(N, 2)`` coordinates of ``points`` projected on the plane."""
+        q = np.asarray(points, float).reshape(-1, 3) - self.origin
+        return np.stack([q @ self.u, q @ self.v], axis=1)
+
+    def contains(self, points: ArrayLike) -> np.ndarray:
+        """``(N,)`` bool: whether each point projects inside the outline (edges count)."""
+        ab = self.plane_coordinates(points)
+        inside = np.ones(len(ab), bool)
+        p = self.polygon
+        for k in range(len(p)):
+            e = p[(k + 1) % len(p)] - p[k]
+            rel = ab - p[k]
+            # Counter-clockwise: inside is to the left of every edge (a small tolerance
+            # keeps points on an edge, which the hull's own vertices are).
+            inside &= e[0] * rel[:, 1] - e[1] * rel[:, 0] >= -1e-9 * (1.0 + np.dot(e, e))
+        return inside
+
+
+def area_region(points: ArrayLike, normal: ArrayLike) -> AreaRegion | None:
+    """The convex outline of a light's vertices ``points`` on the plane of ``normal``.
+
+    None when there are fewer than three points or they are collinear on the plane.
+    """
+    p = np.asarray(points, float).reshape(-1, 3)
+    n = np.asarray(normal, float).reshape(3)
+    if len(p) < 3 or not np.all(np.isfinite(p)) or not np.linalg.norm(n) > 0:
+        return None
+    n = n / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    origin = p.mean(axis=0)
+    ab = np.stack([(p - origin) @ u, (p - origin) @ v], axis=1)
+    try:
+        hull = ConvexHull(ab)
+    except (QhullError, ValueError):
+        return None
+    poly = ab[hull.vertices]  # counter-clockwise for 2-D hulls
+    region = AreaRegion(origin, u, v, n, poly)
+    return region if region.area > 0 else None
+
+
+def clip_to_region(
+    vertices: ArrayLike, faces: ArrayLike, region: AreaRegion
+) -> tuple[np.ndarray, np.ndarray]:
+    """The parts of triangles ``faces`` of ``vertices`` that project inside ``region``.
+
+    Each triangle is clipped against the outline in the plane's coordinates
+    (Sutherland-Hodgman: the intersection of a triangle and a convex polygon is convex)
+    and the pieces are put back on the triangle's own plane, along the region's normal,
+    in the triangle's winding (its front side stays its front side). Written by hand:
+    trimesh slices by planes, not by a polygon's prism. Returns ``(vertices (M, 3),
+    faces (K, 3))`` of the pieces, fan-triangulated; empty arrays when nothing is inside.
+    """
+    v = np.asarray(vertices, float)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    poly = region.polygon
+    out_v: list[np.ndarray] = []
+    out_f: list[np.ndarray] = []
+    count = 0
+    for tri in v[f]:
+        piece = [tuple(x) for x in region.plane_coordinates(tri)]
+        for k in range(len(poly)):
+            a, b = poly[k], poly[(k + 1) % len(poly)]
+            piece = _clip_half_plane(piece, a, b)
+            if not piece:
+                break
+        if len(piece) < 3:
+            continue
+        ab = np.asarray(piece, float)
+        n_t = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+        denom = float(region.normal @ n_t)
+        if abs(denom) < 1e-12 * max(float(np.linalg.norm(n_t)), 1e-30):
+            continue  # edge-on to the plane: nothing of it shows from the room
+        flat = region.origin + ab[:, :1] * region.u + ab[:, 1:] * region.v
+        t = ((tri[0] - flat) @ n_t) / denom
+        out_v.append(flat + t[:, None] * region.normal)
+        m = len(ab)
+        out_f.append(
+            np.stack([np.zeros(m - 2, np.int64), np.arange(1, m - 1), np.arange(2, m)], 1) + count
+        )
+        count += m
+    if not out_v:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    pv, pf = np.concatenate(out_v), np.concatenate(out_f)
+    # Slivers where a face only touches the outline (a corner or an edge on it).
+    t = pv[pf]
+    double_area = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    pf = pf[double_area > 1e-12]
+    if len(pf) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    used, local = np.unique(pf, return_inverse=True)
+    return pv[used], local.reshape(-1, 3)
+
+
+def _clip_half_plane(
+    piece: list[tuple[float, float]], a: np.ndarray, b: np.ndarray
+) -> list[tuple[float, float]]:
+    """The part of the polygon ``piece`` left of the directed edge ``a -> b``."""
+    ex, ey = b[0] - a[0], b[1] - a[1]
+    tol = 1e-12 * (1.0 + ex * ex + ey * ey)
+
+    def side(p: tuple[float, float]) -> float:
+        return ex * (p[1] - a[1]) - ey * (p[0] - a[0])
+
+    out: list[tuple[float, float]] = []
+    n = len(piece)
+    for k in range(n):
+        p, q = piece[k], piece[(k + 1) % n]
+        sp, sq = side(p), side(q)
+        if sp >= -tol:
+            out.append(p)
+        if (sp >= -tol) != (sq >= -tol):
+            s = sp / (sp - sq)
+            out.append((p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1])))
+    return out
