@@ -420,3 +420,40 @@ def test_a_line_light_with_a_radius_glows_on_its_cylinder(tmp_path: Path) -> Non
         (scan / "invert" / "scene.json").write_text(json.dumps(doc))
         _, glows = split_glow(model_scene(scan))
         assert len(read_ply(glows["glow_00"]["filename"]).faces) == len(block.faces)
+
+
+def test_an_outlined_panel_of_its_own_stays_in_place(tmp_path: Path) -> None:
+    """A clean scan's panel is a piece of its own: its outline takes its faces as they
+    are (no lift, no rim), so its edges stay where the scan has them."""
+    from reroom.io.mesh import read_ply
+
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    xs = np.linspace(1.7, 2.3, 4)
+    gx, gy = np.meshgrid(xs, xs - 0.5, indexing="ij")
+    pv = np.stack([gx.ravel(), gy.ravel(), np.full(16, 2.48)], axis=1)
+    i, j = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+    a = (i * 4 + j).ravel()
+    pf = np.concatenate([np.stack([a, a + 1, a + 5], 1), np.stack([a, a + 5, a + 4], 1)])
+    assert np.all(trimesh.Trimesh(pv, pf, process=False).face_normals[:, 2] < 0)  # faces down
+    verts, faces = np.vstack([v, pv]), np.vstack([f, pf + len(v)])
+    scan = tmp_path / "scan"
+    (scan / "invert").mkdir(parents=True)
+    (scan / "lights").mkdir()
+    write_ply(
+        scan / "invert" / "albedo.ply",
+        trimesh.Trimesh(verts, faces, process=False),
+        {"albedo": np.full((len(verts), 3), ALBEDO, np.float32)},
+    )
+    ids = np.full(len(verts), -1)
+    ids[len(v) :] = 0
+    np.savez(scan / "lights" / "lights_vertices.npz", light_id=ids)
+    corners = [[1.7, 1.2, 2.48], [2.3, 1.2, 2.48], [2.3, 1.8, 2.48], [1.7, 1.8, 2.48]]
+    geo = {"light_index": 0, "normal": [0.0, 0.0, -1.0], "area": 0.36, "outline": corners}
+    panel = {"name": "panel", "type": "area", "geometry": geo, "radiance": [5.0, 5.0, 5.0]}
+    doc = {"format": "reroom-invert", "version": 1, "lights": [panel], "albedo_file": "albedo.ply"}
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    scene = model_scene(scan)
+    emitter = read_ply(scene["light_00"]["filename"])
+    assert "light_00_rim" not in scene
+    assert emitter.area == pytest.approx(0.36, rel=1e-6)
+    np.testing.assert_allclose(emitter.vertices[:, 2], 2.48, atol=1e-6)

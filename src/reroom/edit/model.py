@@ -370,7 +370,8 @@ def model_scene(
 
 #: Metres an area light's outline pieces sit in front of the scanned faces they cut
 #: (towards the room), so that the ring of those faces outside the outline, rendered as
-#: surface behind them, never hides them.
+#: surface behind them, never hides them. Only where there is such a ring: at grazing
+#: views 1 mm moves a panel's edge pixels by several per cent of its radiance.
 OUTLINE_LIFT = 1e-3
 
 
@@ -387,9 +388,11 @@ def _area_emitter_shape(
     Without an ``outline`` (a clean scan, an older ``scene.json``) the light is its faces
     with at least two light corners, as before. With one (``reroom invert``'s
     ``area_outline``) it is the part of every face touching a light vertex inside the
-    outline, lifted ``OUTLINE_LIFT`` towards the room, as the transfer integrated it;
-    the faces with two light corners that the room leaves out are then drawn as surface
-    behind it (with the room's albedo), where they reach past the outline.
+    outline, as the transfer integrated it. Where some of those faces reach past the
+    light's vertices (a fused scan's rim) it is lifted ``OUTLINE_LIFT`` towards the room,
+    and the faces with two light corners that the room leaves out are drawn as surface
+    behind it (with the room's albedo); a light that is a piece of its own (a clean
+    scan's panel) stays in place.
     """
     from reroom.invert.area_region import area_region, clip_to_region
 
@@ -403,8 +406,12 @@ def _area_emitter_shape(
     pv, pf = clip_to_region(vertices, faces[touching], region)
     if len(pf) == 0:
         return trimesh.Trimesh(vertices, faces[sel], process=False), None
+    partial = touching & ~members[faces].all(axis=1)
+    if not partial.any():
+        # A light that is a piece of its own (a clean scan's panel): its faces, in place.
+        return trimesh.Trimesh(pv, pf, process=False), None
     emitter = trimesh.Trimesh(pv + OUTLINE_LIFT * region.normal, pf, process=False)
-    rim_faces = faces[sel & ~members[faces].all(axis=1)]
+    rim_faces = faces[sel & partial]
     if len(rim_faces) == 0:
         return emitter, None
     used, local = np.unique(rim_faces, return_inverse=True)
