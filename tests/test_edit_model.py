@@ -40,6 +40,17 @@ def _model(tmp: Path, lights: list[dict]) -> Path:
     return scan
 
 
+def _albedo_scan(tmp: Path, verts: np.ndarray, faces: np.ndarray, light=None) -> Path:
+    """A scan folder whose ``invert/albedo.ply`` is the mesh at ALBEDO (and ``light``)."""
+    scan = tmp / "scan"
+    (scan / "invert").mkdir(parents=True)
+    attrs = {"albedo": np.full((len(verts), 3), ALBEDO, np.float32)}
+    if light is not None:
+        attrs["light"] = light
+    write_ply(scan / "invert" / "albedo.ply", trimesh.Trimesh(verts, faces, process=False), attrs)
+    return scan
+
+
 def _point_light(profile: list[float]) -> dict:
     """A scene.json point light at LIGHT, axis up, 8 inclination bins."""
     return {
@@ -217,13 +228,7 @@ def test_glowing_faces_go_to_their_light(tmp_path: Path) -> None:
     light = np.zeros(len(verts), np.uint8)
     light[len(v) :] = 1  # the tube
     light[: len(v)][np.linalg.norm(v - [2.0, 1.5, 2.5], axis=1) < 0.4] = 1  # bright ceiling
-    scan = tmp_path / "scan"
-    (scan / "invert").mkdir(parents=True)
-    write_ply(
-        scan / "invert" / "albedo.ply",
-        trimesh.Trimesh(verts, faces, process=False),
-        {"albedo": np.full((len(verts), 3), ALBEDO, np.float32), "light": light},
-    )
+    scan = _albedo_scan(tmp_path, verts, faces, light)
     line = {
         "name": "tube",
         "type": "line",
@@ -388,13 +393,7 @@ def test_a_line_light_with_a_radius_glows_on_its_cylinder(tmp_path: Path) -> Non
     faces = np.vstack([f, np.asarray(block.faces) + len(v)])
     light = np.zeros(len(verts), np.uint8)
     light[len(v) :] = 1
-    scan = tmp_path / "scan"
-    (scan / "invert").mkdir(parents=True)
-    write_ply(
-        scan / "invert" / "albedo.ply",
-        trimesh.Trimesh(verts, faces, process=False),
-        {"albedo": np.full((len(verts), 3), ALBEDO, np.float32), "light": light},
-    )
+    scan = _albedo_scan(tmp_path, verts, faces, light)
     geo = {"p0": p0.tolist(), "p1": p1.tolist(), "d_perp": [0.0, 0.0, 1.0], "radius": 0.016}
     line = {
         "name": "tube",
@@ -436,14 +435,8 @@ def test_an_outlined_panel_of_its_own_stays_in_place(tmp_path: Path) -> None:
     pf = np.concatenate([np.stack([a, a + 1, a + 5], 1), np.stack([a, a + 5, a + 4], 1)])
     assert np.all(trimesh.Trimesh(pv, pf, process=False).face_normals[:, 2] < 0)  # faces down
     verts, faces = np.vstack([v, pv]), np.vstack([f, pf + len(v)])
-    scan = tmp_path / "scan"
-    (scan / "invert").mkdir(parents=True)
+    scan = _albedo_scan(tmp_path, verts, faces)
     (scan / "lights").mkdir()
-    write_ply(
-        scan / "invert" / "albedo.ply",
-        trimesh.Trimesh(verts, faces, process=False),
-        {"albedo": np.full((len(verts), 3), ALBEDO, np.float32)},
-    )
     ids = np.full(len(verts), -1)
     ids[len(v) :] = 0
     np.savez(scan / "lights" / "lights_vertices.npz", light_id=ids)
