@@ -450,3 +450,29 @@ def test_an_outlined_panel_of_its_own_stays_in_place(tmp_path: Path) -> None:
     assert "light_00_rim" not in scene
     assert emitter.area == pytest.approx(0.36, rel=1e-6)
     np.testing.assert_allclose(emitter.vertices[:, 2], 2.48, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "outline",
+    [[[1.5, 1.0, 2.5], [2.5, 1.0, 2.5]], [[np.nan, 1.0, 2.5]] * 4, "not a list"],
+)
+def test_a_broken_outline_renders_the_lights_faces(tmp_path: Path, outline) -> None:
+    """An outline that spans no region (two corners, NaN, garbage) is not an error: the
+    light renders from its faces as a scene.json without one does."""
+    from reroom.io.mesh import read_ply
+
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    on = (np.abs(v[:, 0] - 2.0) <= 0.5 + 1e-9) & (np.abs(v[:, 1] - 1.5) <= 0.5 + 1e-9)
+    on &= v[:, 2] > 2.5 - 1e-9
+    scan = _model(tmp_path, [])
+    (scan / "lights").mkdir()
+    np.savez(scan / "lights" / "lights_vertices.npz", light_id=np.where(on, 0, -1))
+    geo = {"light_index": 0, "normal": [0.0, 0.0, -1.0], "area": 1.0, "outline": outline}
+    panel = {"name": "panel", "type": "area", "geometry": geo, "radiance": [5.0, 5.0, 5.0]}
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    doc["lights"] = [panel]
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    scene = model_scene(scan)
+    assert "light_00_rim" not in scene
+    sel = on[f].sum(axis=1) >= 2
+    assert len(read_ply(scene["light_00"]["filename"]).faces) == int(sel.sum())

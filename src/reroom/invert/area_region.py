@@ -68,10 +68,14 @@ class AreaRegion:
 def area_region(points: ArrayLike, normal: ArrayLike) -> AreaRegion | None:
     """The convex outline of a light's vertices ``points`` on the plane of ``normal``.
 
-    None when there are fewer than three points or they are collinear on the plane.
+    None when there are fewer than three points, they are collinear on the plane, or
+    ``points`` / ``normal`` are not finite coordinates.
     """
-    p = np.asarray(points, float).reshape(-1, 3)
-    n = np.asarray(normal, float).reshape(3)
+    try:
+        p = np.asarray(points, float).reshape(-1, 3)
+        n = np.asarray(normal, float).reshape(3)
+    except (TypeError, ValueError):  # not coordinates (a hand-edited scene.json)
+        return None
     if len(p) < 3 or not np.all(np.isfinite(p)) or not np.linalg.norm(n) > 0:
         return None
     n = n / np.linalg.norm(n)
