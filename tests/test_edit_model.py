@@ -338,6 +338,24 @@ def test_shadow_clearance_lets_the_fixture_not_shadow_its_light(tmp_path: Path, 
     np.testing.assert_allclose(got[0.3][e], free[e], rtol=0.03)
 
 
+def _fused_panel(tmp: Path, outline) -> tuple[Path, np.ndarray, np.ndarray, dict, dict]:
+    """A model whose area light is the ceiling's vertices within 0.5 m of (2, 1.5): one
+    surface with the ceiling, as a fused scan holds a panel; ``outline`` its geometry's.
+    Returns the scan, the light's vertices, the faces, scene.json's doc and the geometry."""
+    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    on = (np.abs(v[:, 0] - 2.0) <= 0.5 + 1e-9) & (np.abs(v[:, 1] - 1.5) <= 0.5 + 1e-9)
+    on &= v[:, 2] > 2.5 - 1e-9
+    scan = _model(tmp, [])
+    (scan / "lights").mkdir()
+    np.savez(scan / "lights" / "lights_vertices.npz", light_id=np.where(on, 0, -1))
+    geo = {"light_index": 0, "normal": [0.0, 0.0, -1.0], "area": 1.0, "outline": outline}
+    panel = {"name": "panel", "type": "area", "geometry": geo, "radiance": [5.0, 5.0, 5.0]}
+    doc = json.loads((scan / "invert" / "scene.json").read_text())
+    doc["lights"] = [panel]
+    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    return scan, on, f, doc, geo
+
+
 def test_an_outlined_area_light_renders_its_outline(tmp_path: Path) -> None:
     """A fused panel (ceiling vertices of one surface) with ``reroom invert``'s outline:
     the emitter is the part of the faces touching it inside the outline, a hair in front
@@ -345,18 +363,8 @@ def test_an_outlined_area_light_renders_its_outline(tmp_path: Path) -> None:
     from reroom.edit.model import OUTLINE_LIFT
     from reroom.io.mesh import read_ply
 
-    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
-    on = (np.abs(v[:, 0] - 2.0) <= 0.5 + 1e-9) & (np.abs(v[:, 1] - 1.5) <= 0.5 + 1e-9)
-    on &= v[:, 2] > 2.5 - 1e-9
-    scan = _model(tmp_path, [])
-    (scan / "lights").mkdir()
-    np.savez(scan / "lights" / "lights_vertices.npz", light_id=np.where(on, 0, -1))
     corners = [[1.5, 1.0, 2.5], [2.5, 1.0, 2.5], [2.5, 2.0, 2.5], [1.5, 2.0, 2.5]]
-    geo = {"light_index": 0, "normal": [0.0, 0.0, -1.0], "area": 1.0, "outline": corners}
-    panel = {"name": "panel", "type": "area", "geometry": geo, "radiance": [5.0, 5.0, 5.0]}
-    doc = json.loads((scan / "invert" / "scene.json").read_text())
-    doc["lights"] = [panel]
-    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    scan, on, f, doc, geo = _fused_panel(tmp_path, corners)
     scene = model_scene(scan)
     emitter = read_ply(scene["light_00"]["filename"])
     assert emitter.area == pytest.approx(1.0, rel=1e-9)
@@ -461,17 +469,7 @@ def test_a_broken_outline_renders_the_lights_faces(tmp_path: Path, outline) -> N
     light renders from its faces as a scene.json without one does."""
     from reroom.io.mesh import read_ply
 
-    v, f = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
-    on = (np.abs(v[:, 0] - 2.0) <= 0.5 + 1e-9) & (np.abs(v[:, 1] - 1.5) <= 0.5 + 1e-9)
-    on &= v[:, 2] > 2.5 - 1e-9
-    scan = _model(tmp_path, [])
-    (scan / "lights").mkdir()
-    np.savez(scan / "lights" / "lights_vertices.npz", light_id=np.where(on, 0, -1))
-    geo = {"light_index": 0, "normal": [0.0, 0.0, -1.0], "area": 1.0, "outline": outline}
-    panel = {"name": "panel", "type": "area", "geometry": geo, "radiance": [5.0, 5.0, 5.0]}
-    doc = json.loads((scan / "invert" / "scene.json").read_text())
-    doc["lights"] = [panel]
-    (scan / "invert" / "scene.json").write_text(json.dumps(doc))
+    scan, on, f, _, _ = _fused_panel(tmp_path, outline)
     scene = model_scene(scan)
     assert "light_00_rim" not in scene
     sel = on[f].sum(axis=1) >= 2
