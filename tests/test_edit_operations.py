@@ -320,6 +320,56 @@ def test_empty_removes_the_furniture_and_keeps_the_lights(scan: Path) -> None:
     assert _probe(empty, shadow)[0, 0] == pytest.approx(_direct(shadow)[0], rel=3e-3)
 
 
+def test_the_backing_shell_shows_and_sends_light_back_through_a_hole(
+    scan: Path, tmp_path: Path
+) -> None:
+    from reroom.edit.apply import BACKING_GAP
+
+    # Cut a 1 x 1 m hole in the wall y = 0, where the lamp's light crosses it.
+    holed = tmp_path / "holed"
+    shutil.copytree(scan, holed)
+    alb = read_ply(holed / "invert" / "albedo.ply")
+    v, f = np.asarray(alb.vertices), np.asarray(alb.faces)
+    c = v[f].mean(axis=1)
+    hole = (c[:, 1] < 1e-6) & (np.abs(c[:, 0] - 3.0) < 0.5) & (np.abs(c[:, 2] - 1.25) < 0.5)
+    write_triangle_ply(
+        holed / "invert" / "albedo.ply", v, f[~hole], {"albedo": alb.vertex_attributes["albedo"]}
+    )
+    inward = np.array([0.0, 1.0, 0.0])
+    in_hole = np.array([[3.0, 0.0, 1.25]])
+    behind = in_hole - BACKING_GAP * inward
+    on_wall = np.array([[1.0, 0.0, 1.25]])
+    bare = edited_scene(holed, [], max_depth=2, backing=False)
+    backed = edited_scene(holed, [], max_depth=2)
+    assert not any(k.startswith("backing") for k in bare)
+    assert {"backing_wall", "backing_floor", "backing_ceiling"} <= set(backed)
+    # Without the backing there is nothing behind the hole; with it, a wall lit by the lamp.
+    with pytest.warns(UserWarning, match="no surface within"):
+        assert _probe(bare, behind, inward).max() == 0.0
+    np.testing.assert_allclose(
+        _probe(backed, behind, inward)[:, 0], _direct_on(behind, inward), rtol=3e-3
+    )
+    # Where the scan has its wall, the backing is hidden behind it.
+    np.testing.assert_allclose(
+        _probe(backed, on_wall, inward), _probe(bare, on_wall, inward), rtol=1e-5
+    )
+    # A repaint of the walls repaints the backing; the empty room has none.
+    red = [0.8, 0.1, 0.1]
+    painted = edited_scene(holed, [{"op": "repaint", "target": "wall", "color": red}], max_depth=2)
+    np.testing.assert_allclose(
+        _probe(painted, behind, inward)[0],
+        _direct_on(behind, inward, rho=1.0)[0] * np.array(red),
+        rtol=3e-3,
+    )
+    empty = edited_scene(holed, [{"op": "empty"}], max_depth=2)
+    assert not any(k.startswith("backing") for k in empty)
+    # A room whose ceiling was estimated (never seen) is a bound, not a surface: no backing.
+    layout = json.loads((holed / "layout" / "layout.json").read_text())
+    layout["rooms"][0]["ceiling"] = "estimated"
+    (holed / "layout" / "layout.json").write_text(json.dumps(layout))
+    assert not any(k.startswith("backing") for k in edited_scene(holed, [], max_depth=2))
+
+
 def test_insert_casts_a_shadow(scan: Path) -> None:
     p = np.array([[1.7, 1.5, 0.0]])  # the lamp -> p segment is 0.43 m high at x = 1.55
     base = edited_scene(scan, [], max_depth=2)

@@ -285,3 +285,31 @@ def test_a_fused_panel_emits_from_its_outline_not_half_its_rim():
     # against 0.36 (a third more light, a little more still at the near receivers).
     ratio = shared.sum() / outlined.sum()
     assert 1.3 < ratio < 1.42
+
+
+def test_hemisphere_rays_take_a_fused_panel_from_its_outline_and_its_rim_as_surface():
+    """The hemisphere rays' classes follow the outline too: a hit on a rim triangle is
+    light inside the outline and the ceiling's surface outside it (docs/invert.md, "An
+    area light's outline")."""
+    from reroom.invert.area_region import area_region
+
+    h, half, step = 2.0, 0.3, 0.1
+    mesh, on, recv = fused_ceiling(h, half, step)
+    caster = RayCaster(mesh)
+    nrm = vertex_normals(mesh)
+    region = area_region(mesh.vertices[on], [0.0, 0.0, -1.0])
+    nv = len(mesh.vertices)
+    # The ceiling (light vertices included: their radiance is never read) at 1, the floor 0.
+    radiance = np.repeat((mesh.vertices[:, 2] > 1.0)[:, None], 3, axis=1).astype(float)
+    args = (caster, mesh, recv, nrm, radiance, np.ones(nv, bool), np.where(on, 0, -1), [], None)
+    outlined = hemisphere_transfer(*args, rays_per_vertex=2048, seed=2, area_regions=[region])
+    shared = hemisphere_transfer(*args, rays_per_vertex=2048, seed=2)
+    light = expected_ff(mesh, recv, half, 0.0, h)
+    ceiling = expected_ff(mesh, recv, 1.2, 0.0, h) - light
+    assert outlined.area[:, 0].sum() / light.sum() == pytest.approx(1.0, abs=0.03)
+    assert outlined.indirect[:, 0].sum() / ceiling.sum() == pytest.approx(1.0, abs=0.01)
+    # Shared by barycentric weight the light reaches half a rim triangle further: a third
+    # more light, and as much less ceiling.
+    assert 1.25 < shared.area[:, 0].sum() / outlined.area[:, 0].sum() < 1.5
+    lost = (outlined.indirect[:, 0].sum() - shared.indirect[:, 0].sum()) / light.sum()
+    assert 0.25 < lost < 0.5

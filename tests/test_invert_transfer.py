@@ -699,7 +699,7 @@ def test_line_light_inside_its_own_tube_is_not_shadowed():
 
 def test_kernel_window_test_matches_reference():
     from reroom.invert import _kernels as K
-    from reroom.invert.transfer import _window_arrays
+    from reroom.invert.transfer import _region_arrays, _window_arrays
     from reroom.invert.windows import rays_through_windows
 
     rng = np.random.default_rng(8)
@@ -716,7 +716,8 @@ def test_kernel_window_test_matches_reference():
     nv = 3
     K.accumulate(
         n, org, dirs, t_hit, np.full(n, -1), np.zeros((n, 2)), np.zeros((1, 3), np.int32),
-        np.zeros((1, 3)), np.zeros((nv, 8)), *_window_arrays(wins), 0.02, np.zeros((1, 3)), np.zeros(1),
+        np.zeros((1, 3)), np.zeros((nv, 8)), *_window_arrays(wins), 0.02, *_region_arrays(None, 0),
+        np.zeros((1, 3)), np.zeros(1),
         np.zeros(1), np.zeros(1), np.zeros((1, 1)), through, pane,
     )  # fmt: skip
     assert (ref >= 0).sum() > 1000 and (ref == 1).sum() > 100

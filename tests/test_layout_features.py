@@ -7,9 +7,18 @@ import pytest
 import trimesh
 
 from reroom.layout import features as ft
-from reroom.layout.emptyroom import PORTAL, empty_room_mesh, room_shell
+from reroom.layout.emptyroom import PORTAL, backing_shell, empty_room_mesh, room_shell
 from reroom.layout.evaluate import evaluate_layout, floorplan_iou
-from reroom.layout.labels import CEILING, FLOOR, OTHER, WALL, clean_labels, shell_labels
+from reroom.layout.labels import (
+    CEILING,
+    DOOR,
+    FLOOR,
+    OTHER,
+    WALL,
+    WINDOW,
+    clean_labels,
+    shell_labels,
+)
 from reroom.layout.meshops import vertex_adjacency, vertex_normals
 from reroom.layout.wallgrid import (
     WallGrids,
@@ -309,6 +318,54 @@ def test_empty_room_mesh_from_a_layout_document():
     assert len(parts) == 6  # the shell and five baseboard boxes
     assert all(p.is_watertight for p in parts)
     assert len(lab) == len(mesh.faces)
+
+
+def test_backing_shell_lies_a_gap_behind_the_room_and_has_no_window_panes():
+    # The L-shaped room of the shell test: five convex corners and one reflex one.
+    poly = [[0, 0], [6, 0], [6, 3], [3, 3], [3, 5.5], [0, 5.5]]
+    openings = [
+        {"kind": "window", "wall": 0, "s0": 2.0, "s1": 3.4, "z0": 0.9, "z1": 2.0, "depth": 0.2},
+        {"kind": "door", "wall": 4, "s0": 1.0, "s1": 1.9, "z0": 0.0, "z1": 2.05, "depth": 0.03},
+        {"kind": "passage", "wall": 1, "s0": 1.0, "s1": 2.0, "z0": 0.0, "z1": 2.1, "depth": 0.15},
+    ]
+    room = {"polygon": poly, "floor_z": 0.0, "ceiling_z": 2.6, "openings": openings}
+    doc = {"rotation": np.eye(3).tolist(), "rooms": [room]}
+    gap, margin = 0.02, 0.05
+    mesh, lab = backing_shell(doc, gap, margin)
+    assert len(lab) == len(mesh.faces)
+    assert not np.isin(lab, [PORTAL]).any()
+    assert {WALL, FLOOR, CEILING, DOOR, WINDOW} <= {int(x) for x in np.unique(lab)}
+    caster = RayCaster(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+
+    def hit(origin, direction):
+        h = caster.intersect(np.array([origin], float), np.array([direction], float))
+        return float(h.t[0]), int(lab[h.face[0]]) if h.hit[0] else None
+
+    # Every wall (the reflex corner's two included), the floor and the ceiling: gap out.
+    for origin, direction, distance in [
+        ([1.0, 1.5, 1.2], [0, -1, 0], 1.5),  # wall 0, beside the window
+        ([4.5, 0.5, 1.2], [1, 0, 0], 1.5),  # wall 1, beside the passage
+        ([4.5, 1.5, 1.2], [0, 1, 0], 1.5),  # wall 2, towards the reflex corner
+        ([1.5, 4.5, 1.2], [1, 0, 0], 1.5),  # wall 3, from the reflex corner
+        ([0.5, 4.5, 1.2], [0, 1, 0], 1.0),  # wall 4, beside the door
+        ([1.5, 4.5, 1.2], [-1, 0, 0], 1.5),  # wall 5
+        ([1.5, 1.5, 1.2], [0, 0, -1], 1.2),  # floor
+        ([1.5, 1.5, 1.2], [0, 0, 1], 1.4),  # ceiling
+    ]:
+        d, label = hit(origin, direction)
+        assert d == pytest.approx(distance + gap, abs=1e-6), (origin, direction)
+        assert label in (WALL, FLOOR, CEILING)
+    # The window has no pane, and is open to its margin; beyond the margin the wall is
+    # back. A ray at a slant past the opening meets the reveal (a jamb), not the outside.
+    assert not np.isfinite(hit([2.7, 1.5, 1.45], [0, -1, 0])[0])
+    d, label = hit([3.0, 0.3, 1.45], [-2, -1, 0])
+    assert label == WINDOW and d == pytest.approx(np.hypot(1.05, 0.525), abs=1e-6)
+    assert not np.isfinite(hit([2.0 - 0.6 * margin, 1.5, 1.45], [0, -1, 0])[0])
+    assert hit([2.0 - 1.6 * margin, 1.5, 1.45], [0, -1, 0])[0] == pytest.approx(1.5 + gap)
+    # The passage stays open (its pane is gone); the door's leaf is behind the scanned one.
+    assert not np.isfinite(hit([4.5, 1.5, 1.0], [1, 0, 0])[0])
+    d, label = hit([1.55, 4.5, 1.0], [0, 1, 0])
+    assert label == DOOR and d == pytest.approx(1.0 + gap + 0.03 + gap + margin, abs=1e-6)
 
 
 # ----------------------------------------------------------------------------- evaluation

@@ -77,6 +77,11 @@ def accumulate(
     win_hv: np.ndarray,
     win_normal: np.ndarray,
     tolerance: float,
+    reg_origin: np.ndarray,
+    reg_u: np.ndarray,
+    reg_v: np.ndarray,
+    reg_poly: np.ndarray,
+    reg_n: np.ndarray,
     ind: np.ndarray,
     p_obs: np.ndarray,
     p_unobs: np.ndarray,
@@ -86,6 +91,12 @@ def accumulate(
     pane: np.ndarray,
 ) -> None:
     """Classify each ray and add its shares to its point's sums (see ``transfer.py``).
+
+    ``reg_*`` are the area lights' outlines (:mod:`reroom.invert.area_region`): origin,
+    plane axes, counter-clockwise polygon (padded) and its corner count (0: none). A hit
+    on a triangle with corners both on an outlined light and off it is light inside the
+    outline and the off-light corners' surface outside it, not shared by barycentric
+    weight.
 
     ``vdata`` is ``(V, 8)`` per mesh vertex: radiance times the surface weight (3),
     surface weight (1 for observed non-light vertices), unobserved weight, area light
@@ -141,9 +152,45 @@ def accumulate(
                 p_unobs[p] += 1.0  # back face (or edge-on)
                 continue
             u, v = uv[r, 0], uv[r, 1]
+            # A rim triangle of an outlined area light: inside the outline all light,
+            # outside it all surface (the off-light corners' share, renormalised).
+            lit_a, off_w = -1, 0.0
+            for k in range(3):
+                a = int(vdata[faces[f, k], 5])
+                if a >= 0 and reg_n[a] > 0:
+                    lit_a = a
+                elif a < 0:
+                    off_w += 1.0 - u - v if k == 0 else (u if k == 1 else v)
+            if lit_a >= 0 and off_w < 1.0:
+                qx = org[r, 0] + th * dx - reg_origin[lit_a, 0]
+                qy = org[r, 1] + th * dy - reg_origin[lit_a, 1]
+                qz = org[r, 2] + th * dz - reg_origin[lit_a, 2]
+                qa = qx * reg_u[lit_a, 0] + qy * reg_u[lit_a, 1] + qz * reg_u[lit_a, 2]
+                qb = qx * reg_v[lit_a, 0] + qy * reg_v[lit_a, 1] + qz * reg_v[lit_a, 2]
+                nk = reg_n[lit_a]
+                inside = True
+                for i in range(nk):
+                    j = (i + 1) % nk
+                    ea = reg_poly[lit_a, j, 0] - reg_poly[lit_a, i, 0]
+                    eb = reg_poly[lit_a, j, 1] - reg_poly[lit_a, i, 1]
+                    if ea * (qb - reg_poly[lit_a, i, 1]) - eb * (qa - reg_poly[lit_a, i, 0]) < 0.0:
+                        inside = False
+                        break
+                if inside:
+                    area[p, lit_a] += 1.0
+                    p_light[p] += 1.0
+                    continue
+                if off_w <= 1e-12:
+                    p_unobs[p] += 1.0
+                    continue
             for k in range(3):
                 c = faces[f, k]
                 bk = 1.0 - u - v if k == 0 else (u if k == 1 else v)
+                if lit_a >= 0 and off_w < 1.0:
+                    # Outside the outline: the off-light corners share the whole hit.
+                    if vdata[c, 5] >= 0:
+                        continue
+                    bk /= off_w
                 ind[p, 0] += bk * vdata[c, 0]
                 ind[p, 1] += bk * vdata[c, 1]
                 ind[p, 2] += bk * vdata[c, 2]

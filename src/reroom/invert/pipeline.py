@@ -199,8 +199,9 @@ class InvertOptions:
         instead of dropping the shape prior.
     area_outline : bool
         An area light is the part of the mesh around its vertices that lies inside their
-        convex outline on its plane (:mod:`reroom.invert.area_region`), in the transfer,
-        its power and its rendering; False: the barycentric share of its vertices, which
+        convex outline on its plane (:mod:`reroom.invert.area_region`), in the direct
+        transfer, in the hemisphere rays' classes (a rim triangle's hit is light inside
+        the outline, surface outside), its power and its rendering; False: the barycentric share of its vertices, which
         on a fused scan reaches half a row of triangles past the row of vertices that
         is already past the panel's edge (docs/invert.md, "An area light's outline").
     photo_color : float
@@ -1164,6 +1165,13 @@ def run_invert(
                 f"{int(reached.sum())} vertices no photo saw lit by one bounce of the observed "
                 f"light (reflectance {options.fill_albedo:g}) for the indirect light"
             )
+    # Each area light's outline on its plane: the surface it emits from, in every transfer.
+    regions = [
+        area_region(pts[area_of == k], light.geometry.get("normal", [0.0, 0.0, -1.0]))
+        if options.area_outline and np.any(area_of == k)
+        else None
+        for k, light in enumerate(areas)
+    ]
     hemi = hemisphere_transfer(
         caster,
         mesh,
@@ -1179,6 +1187,7 @@ def run_invert(
         progress=None if progress is None else (lambda d, n: progress("invert transfer", d, n)),
         window_of_vertex=window_of,
         inset=options.receiver_inset,
+        area_regions=regions,
     )
     if len(sub) != len(receivers):
         hemi = spread_transfer(hemi, pts, normals, receivers)
@@ -1226,9 +1235,8 @@ def run_invert(
             )  # fmt: skip
         )
         geometry = dict(light.geometry)
-        region = None
+        region = regions[k]
         if options.area_outline and np.any(area_of == k):
-            region = area_region(pts[area_of == k], geometry.get("normal", [0.0, 0.0, -1.0]))
             if region is None:
                 notes.append(
                     f"area light {light.name!r}: its vertices span no outline on its plane: "

@@ -53,7 +53,7 @@ on a 2.6 cm scan mesh); 10 % of a 25 cm edge made a 1 m light 5 % too bright.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,6 +61,7 @@ import trimesh
 
 from reroom.errors import ReroomError
 from reroom.invert import _kernels as K
+from reroom.invert.area_region import AreaRegion
 from reroom.invert.basis import CubemapBasis, SHBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
 from reroom.invert.windows import WindowOpening
@@ -233,6 +234,26 @@ def _window_arrays(windows: list[WindowOpening]) -> tuple[np.ndarray, ...]:
     return centre, u, v, hu, hv, normal
 
 
+def _region_arrays(
+    regions: Sequence[AreaRegion | None] | None, n_area: int
+) -> tuple[np.ndarray, ...]:
+    """Area-light outlines as arrays for the kernel: origin, plane axes, padded
+    counter-clockwise polygon, corner count (0 where a light has no outline)."""
+    regions = list(regions or [])[:n_area]
+    n = max(n_area, 1)
+    k = max([len(r.polygon) for r in regions if r is not None] + [1])
+    origin, u, v = (np.zeros((n, 3)) for _ in range(3))
+    poly = np.zeros((n, k, 2))
+    count = np.zeros(n, np.int64)
+    for i, reg in enumerate(regions):
+        if reg is None:
+            continue
+        origin[i], u[i], v[i] = reg.origin, reg.u, reg.v
+        poly[i, : len(reg.polygon)] = reg.polygon
+        count[i] = len(reg.polygon)
+    return origin, u, v, poly, count
+
+
 def _distant_sums(
     basis: CubemapBasis | SHBasis,
     nb: int,
@@ -299,6 +320,7 @@ def hemisphere_transfer(
     inset: float = 0.0,
     window_tolerance: float = 0.02,
     batch_rays: int = BATCH_RAYS,
+    area_regions: Sequence[AreaRegion | None] | None = None,
 ) -> HemisphereTransfer:
     """Cast ``rays_per_vertex`` cosine-weighted rays from each vertex and integrate.
 
@@ -341,6 +363,12 @@ def hemisphere_transfer(
         Metres, see :func:`reroom.invert.windows.rays_through_windows`.
     batch_rays:
         Rays per caster call (memory bound, ~400 bytes per ray).
+    area_regions:
+        Per area light, its outline (:func:`reroom.invert.area_region.area_region`) or
+        None. A hit on a triangle that touches an outlined light and has corners off it
+        is the light's inside the outline and the off-light corners' surface outside it,
+        as :func:`reroom.invert.area.area_light_transfer` integrates the light; without
+        an outline the hit is shared between its corners' classes by barycentric weight.
 
     Returns
     -------
@@ -408,6 +436,7 @@ def hemisphere_transfer(
     per_batch = max(1, int(batch_rays) // R)
     grid = _grid_shape(R)
     win_arrays = _window_arrays(windows)
+    reg_arrays = _region_arrays(area_regions, n_area)
 
     for b0 in range(0, n, per_batch):
         b1 = min(n, b0 + per_batch)
@@ -424,7 +453,7 @@ def hemisphere_transfer(
         area_acc = np.zeros((nb, max(n_area, 1)))
         K.accumulate(
             R, org, dirs, hits.t, hits.face, hits.uv, faces, face_normals, vdata,
-            *win_arrays, window_tolerance,
+            *win_arrays, window_tolerance, *reg_arrays,
             out_ind[b0:b1], out_po[b0:b1], out_pu[b0:b1], out_pl[b0:b1], area_acc, through, pane,
         )  # fmt: skip
         out_area[b0:b1] = area_acc[:, :n_area]

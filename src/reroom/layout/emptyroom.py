@@ -307,3 +307,124 @@ def empty_room_mesh(layout: dict, in_scan_frame: bool = True) -> tuple[trimesh.T
         rot = np.asarray(layout.get("rotation", np.eye(3)), float)
         mesh = trimesh.Trimesh(np.asarray(mesh.vertices) @ rot, mesh.faces, process=False)
     return mesh, np.concatenate(labels)
+
+
+def _grown_room(room: dict, gap: float, margin: float) -> dict:
+    """``room`` with its walls ``gap`` further out, its floor ``gap`` lower, its ceiling
+    ``gap`` higher, each opening ``margin`` wider on every side, no baseboard."""
+    poly = np.asarray(room["polygon"], float)
+    k = len(poly)
+    edge = np.roll(poly, -1, axis=0) - poly
+    t = edge / np.maximum(np.linalg.norm(edge, axis=1, keepdims=True), 1e-12)
+    out = np.stack([t[:, 1], -t[:, 0]], axis=1)  # outward normal of a counter-clockwise edge
+    prev = np.roll(out, 1, axis=0)
+    # The mitre of the two edges meeting at each corner: on both offset lines at once
+    # (n1 + n2) / (1 + n1 . n2) is exact for any two unit normals not facing each other.
+    shift = gap * (prev + out) / np.maximum(1.0 + np.sum(prev * out, axis=1), 1e-6)[:, None]
+    grown = poly + shift
+    openings = []
+    for o in room.get("openings", []):
+        i = int(o["wall"]) % k
+        # The edge's start moved along the edge by shift . t: arc lengths follow it.
+        ds = float(shift[i] @ t[i])
+        depth = abs(float(o.get("depth", 0.05)))
+        # A passage's tunnel ends at the next room's backing (gap short of both walls); a
+        # door's leaf stays behind the scanned leaf (its recess plus the gap).
+        depth = max(depth - 2 * gap, 0.001) if o["kind"] == "passage" else depth + gap + margin
+        openings.append(
+            {
+                **o,
+                "s0": float(o["s0"]) - ds - margin,
+                "s1": float(o["s1"]) - ds + margin,
+                "z0": float(o["z0"]) - margin,
+                "z1": float(o["z1"]) + margin,
+                "depth": depth,
+            }
+        )
+    return {
+        **room,
+        "polygon": grown.tolist(),
+        "floor_z": float(room["floor_z"]) - gap,
+        "ceiling_z": float(room["ceiling_z"]) + gap,
+        "openings": openings,
+        "baseboard": None,
+    }
+
+
+def backing_shell(
+    layout: dict, gap: float = 0.02, margin: float = 0.05, in_scan_frame: bool = True
+) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The layout's rooms as shells ``gap`` metres behind their walls, floor and ceiling,
+    open at the windows' panes: what fills the holes of a scanned mesh when it is rendered.
+
+    A fused scan has holes where no frame looked (behind a cabinet, a corner the walk
+    missed). Rendered alone they show the renderer's background from a new camera, and
+    they let the light out that the true wall would have sent back. Behind the scan, this
+    shell is hidden wherever the scan has a surface and shows through where it has none.
+
+    Parameters
+    ----------
+    layout:
+        The ``layout.json`` document.
+    gap:
+        How far behind the layout's planes the shell lies; larger than the scanned
+        surfaces' spread about their planes, so that it never shows through them (a fused
+        scan's walls lie within about a centimetre of their planes).
+    margin:
+        How much wider than the layout's openings the shell's openings are on every side,
+        so that a window's recess or a door's leaf, measured a little small, stays in view.
+    in_scan_frame:
+        As :func:`empty_room_mesh`.
+
+    Returns
+    -------
+    mesh, face_labels
+        Walls, floor, ceiling, each window's reveals (jambs, head and sill, so that a
+        camera looking past a scan's missing reveal does not see out beside the
+        window's portal) without its pane (the shell is open there: the window's light
+        comes through), each door's tunnel and leaf (behind the scanned door); no
+        passage panes (rooms stay joined); no baseboards.
+    """
+    grown = {**layout, "rooms": [_grown_room(r, gap, margin) for r in layout["rooms"]]}
+    mesh, labels = empty_room_mesh(grown, in_scan_frame=False)
+    keep = (labels != PORTAL) & ~_window_panes(grown["rooms"], mesh, labels)
+    if not keep.any():
+        return trimesh.Trimesh(), np.zeros(0, np.uint8)
+    vertices = np.asarray(mesh.vertices)
+    if in_scan_frame:
+        vertices = vertices @ np.asarray(layout.get("rotation", np.eye(3)), float)
+    sub = trimesh.Trimesh(vertices, np.asarray(mesh.faces)[keep], process=False)
+    sub.remove_unreferenced_vertices()
+    return sub, labels[keep]
+
+
+def _window_panes(rooms: list[dict], mesh: trimesh.Trimesh, labels: np.ndarray) -> np.ndarray:
+    """Which faces of an (aligned-frame) empty-room mesh are the panes closing its
+    windows: the window-labelled faces on the plane at each window's depth, facing the
+    room, within its span. The reveals (jambs, head, sill) are window-labelled too."""
+    pane = np.zeros(len(labels), bool)
+    win = labels == WINDOW
+    if not win.any():
+        return pane
+    centres = mesh.triangles_center
+    normals = mesh.face_normals
+    for room in rooms:
+        poly = np.asarray(room["polygon"], float)
+        k = len(poly)
+        for o in room.get("openings", []):
+            if o["kind"] != "window":
+                continue
+            a, b = poly[int(o["wall"]) % k], poly[(int(o["wall"]) + 1) % k]
+            t = np.append((b - a) / np.linalg.norm(b - a), 0.0)
+            out = np.array([t[1], -t[0], 0.0])
+            rel = centres - np.append(a, 0.0)
+            depth = max(0.001, abs(float(o.get("depth", 0.05))))
+            along = rel @ t
+            pane |= (
+                win
+                & (np.abs(rel @ out - depth) < 1e-6)
+                & (normals @ out < -0.99)
+                & (along > float(o["s0"]) - 1e-6)
+                & (along < float(o["s1"]) + 1e-6)
+            )
+    return pane
