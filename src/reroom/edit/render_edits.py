@@ -473,8 +473,10 @@ def bake_edit(
 ) -> dict[str, Any]:
     """Bake the edited model's per-vertex radiance; write ``<name>.ply`` and ``<name>.glb``.
 
-    Every non-emitting PLY surface of the edited scene is joined into one mesh; large
-    faces (the empty shell's) are subdivided to at most ``max_edge`` metres so the
+    Every non-emitting PLY surface of the edited scene is joined into one mesh (the
+    layout's shell behind the scan too: it fills the scan's holes in a viewer as in a
+    render, and bakes dark where the scan hides it); large faces (the shells') are
+    subdivided to at most ``max_edge`` metres so the
     vertex colours can show the light's variation. Vertex normals are the surface's
     (the scan mesh and the shell face into the room), so each vertex's baked radiance is
     what a viewer inside the room sees.
