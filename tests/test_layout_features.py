@@ -367,6 +367,22 @@ def test_backing_shell_lies_a_gap_behind_the_room_and_has_no_window_panes():
     d, label = hit([1.55, 4.5, 1.0], [0, 1, 0])
     assert label == DOOR and d == pytest.approx(1.0 + gap + 0.03 + gap + margin, abs=1e-6)
 
+    # With the renderer's portal for that window (a little off the layout's opening, at
+    # sub-micrometre coordinates as a solve gives them) the opening is the portal's
+    # rectangle and its reveals end at the portal's plane.
+    portal = tuple(
+        np.array(x, float)
+        for x in ([2.7200003, -0.19, 1.4600003], [0.69, 0, 0], [0, 0, 0.54], [0, 1, 0])
+    )
+    mesh, lab = backing_shell(doc, gap, margin, portals=[portal])
+    caster = RayCaster(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    d, label = hit([3.0, 0.3, 1.45], [-2, -1, 0])  # meets the jamb at x = 2.03
+    assert label == WINDOW and d == pytest.approx(np.hypot(0.97, 0.485), abs=1e-6)
+    assert not np.isfinite(hit([2.7, 1.5, 1.45], [0, -1, 0])[0])  # no pane
+    # The reveals run from the shell's wall to the portal's plane.
+    reveal_y = mesh.vertices[mesh.faces[lab == WINDOW]][..., 1]
+    assert reveal_y.max() == pytest.approx(-gap) and reveal_y.min() == pytest.approx(-0.19)
+
 
 # ----------------------------------------------------------------------------- evaluation
 

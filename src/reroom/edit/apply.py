@@ -1156,7 +1156,17 @@ def _back_the_scan(
     rooms = [r for r in model.layout.get("rooms", []) if r.get("ceiling", "seen") == "seen"]
     if not rooms:
         return
-    shell, face_label = backing_shell({**model.layout, "rooms": rooms}, BACKING_GAP, BACKING_MARGIN)
+    portals = [
+        tuple(
+            np.asarray(light["geometry"][k], float)
+            for k in ("centre", "half_u", "half_v", "normal")
+        )
+        for light in model.doc.get("lights", [])
+        if light["type"] == "window"
+    ]
+    shell, face_label = backing_shell(
+        {**model.layout, "rooms": rooms}, BACKING_GAP, BACKING_MARGIN, portals=portals
+    )
     if len(shell.faces) == 0:
         return
     face_label = np.asarray(face_label, np.int64)

@@ -309,9 +309,38 @@ def empty_room_mesh(layout: dict, in_scan_frame: bool = True) -> tuple[trimesh.T
     return mesh, np.concatenate(labels)
 
 
-def _grown_room(room: dict, gap: float, margin: float) -> dict:
+def _portal_on_wall(
+    o: dict, a: np.ndarray, t: np.ndarray, out: np.ndarray, portals: list[tuple[np.ndarray, ...]]
+) -> dict | None:
+    """The first of ``portals`` (aligned-frame centre, half axes, normal) that closes
+    window opening ``o`` of the wall from ``a`` along ``t`` (outward normal ``out``): its
+    span ``s0, s1, z0, z1`` and its plane's depth behind the wall line, or None."""
+    t3 = np.append(t, 0.0)
+    for centre, hu, hv, normal in portals:
+        if abs(float(normal[:2] @ out)) < 0.9:
+            continue
+        s_c = float((centre[:2] - a) @ t)
+        depth = float((centre[:2] - a) @ out)
+        if not (o["s0"] - 0.3 <= s_c <= o["s1"] + 0.3 and -0.05 <= depth <= 0.6):
+            continue
+        half_s = abs(float(hu @ t3)) + abs(float(hv @ t3))
+        half_z = abs(float(hu[2])) + abs(float(hv[2]))
+        return {
+            "s0": s_c - half_s,
+            "s1": s_c + half_s,
+            "z0": float(centre[2]) - half_z,
+            "z1": float(centre[2]) + half_z,
+            "depth": depth,
+        }
+    return None
+
+
+def _grown_room(
+    room: dict, gap: float, margin: float, portals: list[tuple[np.ndarray, ...]] | None = None
+) -> dict:
     """``room`` with its walls ``gap`` further out, its floor ``gap`` lower, its ceiling
-    ``gap`` higher, each opening ``margin`` wider on every side, no baseboard."""
+    ``gap`` higher, each opening ``margin`` wider on every side (a window closed by one of
+    ``portals``: that rectangle exactly, its reveals ending at its plane), no baseboard."""
     poly = np.asarray(room["polygon"], float)
     k = len(poly)
     edge = np.roll(poly, -1, axis=0) - poly
@@ -331,13 +360,32 @@ def _grown_room(room: dict, gap: float, margin: float) -> dict:
         # A passage's tunnel ends at the next room's backing (gap short of both walls); a
         # door's leaf stays behind the scanned leaf (its recess plus the gap).
         depth = max(depth - 2 * gap, 0.001) if o["kind"] == "passage" else depth + gap + margin
+        portal = None
+        if o["kind"] == "window" and portals:
+            portal = _portal_on_wall(o, poly[i], t[i], out[i], portals)
+        if portal is not None:
+            # The reveals meet the portal's edges and end at its plane, where the
+            # renderer's window is: no gap between them for a camera to see out through.
+            # Rounded as room_shell rounds its cut lines (to the micrometre), or a cut
+            # would miss the opening's edge and leave its tunnel out.
+            openings.append(
+                {
+                    **o,
+                    "s0": round(portal["s0"] - ds, 6),
+                    "s1": round(portal["s1"] - ds, 6),
+                    "z0": round(portal["z0"], 6),
+                    "z1": round(portal["z1"], 6),
+                    "depth": max(portal["depth"] - gap, 0.001),
+                }
+            )
+            continue
         openings.append(
             {
                 **o,
-                "s0": float(o["s0"]) - ds - margin,
-                "s1": float(o["s1"]) - ds + margin,
-                "z0": float(o["z0"]) - margin,
-                "z1": float(o["z1"]) + margin,
+                "s0": round(float(o["s0"]) - ds - margin, 6),
+                "s1": round(float(o["s1"]) - ds + margin, 6),
+                "z0": round(float(o["z0"]) - margin, 6),
+                "z1": round(float(o["z1"]) + margin, 6),
                 "depth": depth,
             }
         )
@@ -352,7 +400,11 @@ def _grown_room(room: dict, gap: float, margin: float) -> dict:
 
 
 def backing_shell(
-    layout: dict, gap: float = 0.02, margin: float = 0.05, in_scan_frame: bool = True
+    layout: dict,
+    gap: float = 0.02,
+    margin: float = 0.05,
+    in_scan_frame: bool = True,
+    portals: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[trimesh.Trimesh, np.ndarray]:
     """The layout's rooms as shells ``gap`` metres behind their walls, floor and ceiling,
     open at the windows' panes: what fills the holes of a scanned mesh when it is rendered.
@@ -375,6 +427,13 @@ def backing_shell(
         so that a window's recess or a door's leaf, measured a little small, stays in view.
     in_scan_frame:
         As :func:`empty_room_mesh`.
+    portals:
+        The renderer's window rectangles (centre, half axes, normal; in the scan frame
+        when ``in_scan_frame``, else aligned). A window opening one of them closes
+        (same wall, centre within 30 cm of the opening's span) takes that rectangle as
+        its opening, without the margin, and its reveals end at the rectangle's plane:
+        a point of a reveal next to the portal sees it as the true reveal sees the sky
+        beside its pane (with the margin's 5 cm gap it got half the light or less).
 
     Returns
     -------
@@ -385,14 +444,22 @@ def backing_shell(
         comes through), each door's tunnel and leaf (behind the scanned door); no
         passage panes (rooms stay joined); no baseboards.
     """
-    grown = {**layout, "rooms": [_grown_room(r, gap, margin) for r in layout["rooms"]]}
+    rot = np.asarray(layout.get("rotation", np.eye(3)), float)
+    aligned = [
+        tuple(np.asarray(x, float) @ (rot.T if in_scan_frame else np.eye(3)) for x in p)
+        for p in portals or []
+    ]
+    grown = {
+        **layout,
+        "rooms": [_grown_room(r, gap, margin, aligned) for r in layout["rooms"]],
+    }
     mesh, labels = empty_room_mesh(grown, in_scan_frame=False)
     keep = (labels != PORTAL) & ~_window_panes(grown["rooms"], mesh, labels)
     if not keep.any():
         return trimesh.Trimesh(), np.zeros(0, np.uint8)
     vertices = np.asarray(mesh.vertices)
     if in_scan_frame:
-        vertices = vertices @ np.asarray(layout.get("rotation", np.eye(3)), float)
+        vertices = vertices @ rot
     sub = trimesh.Trimesh(vertices, np.asarray(mesh.faces)[keep], process=False)
     sub.remove_unreferenced_vertices()
     return sub, labels[keep]
