@@ -363,8 +363,18 @@ def test_the_backing_shell_shows_and_sends_light_back_through_a_hole(
     )
     empty = edited_scene(holed, [{"op": "empty"}], max_depth=2)
     assert not any(k.startswith("backing") for k in empty)
-    # A room whose ceiling was estimated (never seen) is a bound, not a surface: no backing.
+    # A layout wall fitted 5 cm in front of the scanned one: the shell goes behind the
+    # scan's wall (1 cm past it), not in front of it where it would block the lamp.
     layout = json.loads((holed / "layout" / "layout.json").read_text())
+    layout["rooms"][0]["polygon"] = [[0, 0.05], [4, 0.05], [4, 3], [0, 3]]
+    (holed / "layout" / "layout.json").write_text(json.dumps(layout))
+    moved = edited_scene(holed, [], max_depth=2)
+    np.testing.assert_allclose(
+        _probe(moved, on_wall, inward), _probe(bare, on_wall, inward), rtol=1e-5
+    )
+    shell_y = read_ply(moved["backing_wall"]["filename"]).vertices[:, 1]
+    assert shell_y.min() == pytest.approx(-0.01, abs=1e-6)
+    # A room whose ceiling was estimated (never seen) is a bound, not a surface: no backing.
     layout["rooms"][0]["ceiling"] = "estimated"
     (holed / "layout" / "layout.json").write_text(json.dumps(layout))
     assert not any(k.startswith("backing") for k in edited_scene(holed, [], max_depth=2))

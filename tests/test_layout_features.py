@@ -7,7 +7,13 @@ import pytest
 import trimesh
 
 from reroom.layout import features as ft
-from reroom.layout.emptyroom import PORTAL, backing_shell, empty_room_mesh, room_shell
+from reroom.layout.emptyroom import (
+    PORTAL,
+    backing_shell,
+    depth_behind_planes,
+    empty_room_mesh,
+    room_shell,
+)
 from reroom.layout.evaluate import evaluate_layout, floorplan_iou
 from reroom.layout.labels import (
     CEILING,
@@ -382,6 +388,27 @@ def test_backing_shell_lies_a_gap_behind_the_room_and_has_no_window_panes():
     # The reveals run from the shell's wall to the portal's plane.
     reveal_y = mesh.vertices[mesh.faces[lab == WINDOW]][..., 1]
     assert reveal_y.max() == pytest.approx(-gap) and reveal_y.min() == pytest.approx(-0.19)
+
+
+def test_depth_behind_planes_counts_each_surface_out_of_its_own_plane():
+    room = {
+        "polygon": [[0, 0], [6, 0], [6, 3], [3, 3], [3, 5.5], [0, 5.5]],
+        "floor_z": 0.0,
+        "ceiling_z": 2.6,
+    }
+    rng = np.random.default_rng(4)
+    n = 2000
+    # Wall 0 (y = 0), 3 cm behind its line; wall 3 (x = 3, from the reflex corner up),
+    # on its line: near the corner its points lie along wall 2's line, not out of it.
+    w0 = np.column_stack([rng.uniform(0.1, 5.9, n), np.full(n, -0.03), rng.uniform(0, 2.6, n)])
+    w3 = np.column_stack([np.full(n, 3.0), rng.uniform(3.0, 5.5, n), rng.uniform(0, 2.6, n)])
+    floor = np.column_stack([rng.uniform(0.1, 2.9, n), rng.uniform(0.1, 5.4, n), np.full(n, -0.01)])
+    pts = np.concatenate([w0, w3, floor])
+    lab = np.repeat([WALL, WALL, FLOOR], n)
+    assert depth_behind_planes(room, pts, lab) == pytest.approx(0.03, abs=1e-9)
+    assert depth_behind_planes(room, pts[n:], lab[n:]) == pytest.approx(0.01, abs=1e-9)
+    assert depth_behind_planes(room, pts[n : 2 * n], lab[n : 2 * n]) == 0.0
+    assert depth_behind_planes(room, pts[:0], lab[:0]) == 0.0
 
 
 # ----------------------------------------------------------------------------- evaluation

@@ -1128,9 +1128,10 @@ def _empty_room(
         }
 
 
-#: How far behind the layout's planes the backing shell lies (metres). The scanned walls,
-#: floor and ceiling of the fused scans lie within 1 cm of their planes (99.9 % of their
-#: vertices on the issue's 300-frame scan; a clean scan's on them).
+#: How far behind the layout's planes the backing shell lies at least (metres): further
+#: where a room's scanned walls, floor or ceiling reach further out of their planes (the
+#: 99.9th percentile plus 1 cm). The fused scans' lie within 1 cm of their planes (99.9 %
+#: of their vertices on the issue's 300-frame scan; a clean scan's on them).
 BACKING_GAP = 0.02
 #: How much wider the backing's openings are than the layout's, on every side (metres).
 BACKING_MARGIN = 0.05
@@ -1142,15 +1143,15 @@ def _back_the_scan(
     paint: dict[str, dict[str, Any]],
     work: Path,
 ) -> None:
-    """Add the layout's shell ``BACKING_GAP`` behind the scan (``backing_*`` shapes):
-    it shows, and reflects light, only through the scan's holes.
+    """Add the layout's shell behind the scan (``backing_*`` shapes): it shows, and
+    reflects light, only through the scan's holes.
 
     Only rooms whose ceiling was seen: a room with an estimated ceiling (a real scan
     that never looked up) has a lower bound for a ceiling and an outline grown to hold
     the cameras, not measured surfaces; its holes keep the constant surroundings the
     solve fitted (:func:`reroom.edit.model.surroundings_emitter`).
     """
-    from reroom.layout.emptyroom import backing_shell
+    from reroom.layout.emptyroom import backing_shell, depth_behind_planes
 
     assert model.layout is not None
     rooms = [r for r in model.layout.get("rooms", []) if r.get("ceiling", "seen") == "seen"]
@@ -1164,12 +1165,22 @@ def _back_the_scan(
         for light in model.doc.get("lights", [])
         if light["type"] == "window"
     ]
-    shell, face_label = backing_shell(
-        {**model.layout, "rooms": rooms}, BACKING_GAP, BACKING_MARGIN, portals=portals
-    )
-    if len(shell.faces) == 0:
+    # Each room's shell lies behind every scanned surface of its walls, floor and
+    # ceiling: BACKING_GAP, or 1 cm more than the scan's surfaces reach out of the
+    # layout's planes where a plane was fitted in front of them (clutter along a wall).
+    labels = model.labels if model.labels is not None else np.full(len(model.vertices), -1)
+    aligned = model.to_aligned(model.vertices)
+    parts = []
+    for room in rooms:
+        gap = max(BACKING_GAP, depth_behind_planes(room, aligned, labels) + 0.01)
+        parts.append(
+            backing_shell({**model.layout, "rooms": [room]}, gap, BACKING_MARGIN, portals=portals)
+        )
+    parts = [(m, lab) for m, lab in parts if len(m.faces)]
+    if not parts:
         return
-    face_label = np.asarray(face_label, np.int64)
+    shell = trimesh.util.concatenate([m for m, _ in parts])
+    face_label = np.concatenate([lab for _, lab in parts]).astype(np.int64)
     _shell_surfaces(
         scene, model, paint, work, shell, face_label, np.ones(len(face_label), bool), "backing"
     )

@@ -495,3 +495,55 @@ def _window_panes(rooms: list[dict], mesh: trimesh.Trimesh, labels: np.ndarray) 
                 & (along < float(o["s1"]) + 1e-6)
             )
     return pane
+
+
+def depth_behind_planes(
+    room: dict, points: np.ndarray, labels: np.ndarray, quantile: float = 0.999
+) -> float:
+    """How far a scan's wall, floor and ceiling points lie behind one room's planes.
+
+    Parameters
+    ----------
+    room:
+        A room of ``layout.json`` (aligned frame).
+    points:
+        ``(N, 3)`` scan vertices in the aligned frame.
+    labels:
+        ``(N,)`` their layout labels (``WALL``, ``FLOOR``, ``CEILING``; others ignored).
+    quantile:
+        Which quantile of the distances out to return.
+
+    Returns
+    -------
+    float
+        The ``quantile`` of the distances (metres) of the labelled points out of their
+        plane (a wall point: out of the nearest wall line it lies along, 5 cm clear of
+        the wall's ends so that the next wall's points at a corner do not count; a floor
+        or ceiling point inside the outline: below the floor, above the ceiling); 0 when
+        none lies out.
+    """
+    from reroom.synth.room import point_in_polygon
+
+    pts = np.asarray(points, float)
+    lab = np.asarray(labels)
+    poly = np.asarray(room["polygon"], float)
+    k = len(poly)
+    outs = []
+    walls = pts[lab == WALL]
+    for i in range(k):
+        a, b = poly[i], poly[(i + 1) % k]
+        length = float(np.linalg.norm(b - a))
+        t = (b - a) / max(length, 1e-12)
+        rel = walls[:, :2] - a
+        along = rel @ t
+        out = rel @ np.array([t[1], -t[0]])
+        near = (along > 0.05) & (along < length - 0.05) & (out > -0.3) & (out < 0.5)
+        outs.append(out[near])
+    for label, sign, level in ((FLOOR, -1.0, room["floor_z"]), (CEILING, 1.0, room["ceiling_z"])):
+        sel = pts[lab == label]
+        inside = point_in_polygon(sel[:, 0], sel[:, 1], poly) if len(sel) else np.zeros(0, bool)
+        outs.append(sign * (sel[inside, 2] - float(level)))
+    d = np.concatenate(outs) if outs else np.zeros(0)
+    if len(d) == 0:
+        return 0.0
+    return float(max(np.quantile(d, quantile), 0.0))
