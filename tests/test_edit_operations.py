@@ -776,6 +776,10 @@ def test_photo_textures_render_on_the_scan_and_as_pattern_in_the_empty_room(
     np.testing.assert_allclose(_probe(scene, right)[:, 0], _direct(right, rho=0.8), rtol=3e-3)
     wall_base = _probe(edited_scene(scan, [], max_depth=2), wall, (-1.0, 0.0, 0.0))
     np.testing.assert_allclose(_probe(scene, wall, (-1.0, 0.0, 0.0)), wall_base, rtol=1e-3)
+    # The shell behind the scan shows the textured plane at its mean albedo, no image.
+    below = np.array([[1.0, 1.0, -0.02], [3.0, 2.0, -0.02]])
+    assert scene["backing_texture_floor_0"]["bsdf"]["bsdf"]["reflectance"]["value"] == [0.5] * 3
+    np.testing.assert_array_equal(_probe(scene, below), 0.0)  # under the scan's floor: dark
     # The empty room: the detail at the plane's mean albedo (0.5).
     empty = edited_scene(room, [{"op": "empty"}], max_depth=2)
     assert "room_texture_floor_0" in empty and "room_floor" not in empty
