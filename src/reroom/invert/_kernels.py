@@ -161,7 +161,8 @@ def accumulate(
                     lit_a = a
                 elif a < 0:
                     off_w += 1.0 - u - v if k == 0 else (u if k == 1 else v)
-            if lit_a >= 0 and off_w < 1.0:
+            rim = lit_a >= 0 and off_w < 1.0
+            if rim:
                 qx = org[r, 0] + th * dx - reg_origin[lit_a, 0]
                 qy = org[r, 1] + th * dy - reg_origin[lit_a, 1]
                 qz = org[r, 2] + th * dz - reg_origin[lit_a, 2]
@@ -186,7 +187,7 @@ def accumulate(
             for k in range(3):
                 c = faces[f, k]
                 bk = 1.0 - u - v if k == 0 else (u if k == 1 else v)
-                if lit_a >= 0 and off_w < 1.0:
+                if rim:
                     # Outside the outline: the off-light corners share the whole hit.
                     if vdata[c, 5] >= 0:
                         continue

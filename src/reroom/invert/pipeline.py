@@ -201,9 +201,10 @@ class InvertOptions:
         An area light is the part of the mesh around its vertices that lies inside their
         convex outline on its plane (:mod:`reroom.invert.area_region`), in the direct
         transfer, in the hemisphere rays' classes (a rim triangle's hit is light inside
-        the outline, surface outside), its power and its rendering; False: the barycentric share of its vertices, which
-        on a fused scan reaches half a row of triangles past the row of vertices that
-        is already past the panel's edge (docs/invert.md, "An area light's outline").
+        the outline, surface outside), its power and its rendering; False: the
+        barycentric share of its vertices, which on a fused scan reaches half a row of
+        triangles past the row of vertices that is already past the panel's edge
+        (docs/invert.md, "An area light's outline").
     photo_color : float
         Weight of a prior on each line and area light's colour read from the
         unsaturated edge of its clipped image in the photos
