@@ -374,6 +374,13 @@ def test_the_backing_shell_shows_and_sends_light_back_through_a_hole(
     )
     shell_y = read_ply(moved["backing_wall"]["filename"]).vertices[:, 1]
     assert shell_y.min() == pytest.approx(-0.01, abs=1e-6)
+    # A hand-edited layout whose room is not a polygon: the scan renders without the shell.
+    layout["rooms"][0]["polygon"] = "four corners"
+    (holed / "layout" / "layout.json").write_text(json.dumps(layout))
+    with pytest.warns(UserWarning, match=r"layout.json: room 'room0' does not make a shell"):
+        broken = edited_scene(holed, [], max_depth=2)
+    assert "room" in broken and not any(k.startswith("backing") for k in broken)
+    layout["rooms"][0]["polygon"] = [[0, 0], [4, 0], [4, 3], [0, 3]]
     # A room whose ceiling was estimated (never seen) is a bound, not a surface: no backing.
     layout["rooms"][0]["ceiling"] = "estimated"
     (holed / "layout" / "layout.json").write_text(json.dumps(layout))

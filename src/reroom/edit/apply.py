@@ -44,6 +44,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -157,6 +158,12 @@ class RoomModel:
         tex = read_textures([entry], self.invert_dir)[0]
         mean = entry.get("mean_albedo")
         return tex.detail, np.asarray(mean, float) if mean is not None else tex.mean_albedo
+
+    def texture_level(self, index: int) -> np.ndarray:
+        """Photo texture ``index``'s plane's mean albedo (read from ``scene.json`` where
+        it is recorded, without loading the texture's images)."""
+        mean = self.doc["textures"][index].get("mean_albedo")
+        return np.asarray(mean, float) if mean is not None else self.texture_detail(index)[1]
 
     def targets(self) -> list[str]:
         """Repaint targets: the labels this room has, and its material clusters."""
@@ -1171,11 +1178,22 @@ def _back_the_scan(
     labels = model.labels if model.labels is not None else np.full(len(model.vertices), -1)
     aligned = model.to_aligned(model.vertices)
     parts = []
-    for room in rooms:
-        gap = max(BACKING_GAP, depth_behind_planes(room, aligned, labels) + 0.01)
-        parts.append(
-            backing_shell({**model.layout, "rooms": [room]}, gap, BACKING_MARGIN, portals=portals)
-        )
+    for k, room in enumerate(rooms):
+        try:
+            gap = max(BACKING_GAP, depth_behind_planes(room, aligned, labels) + 0.01)
+            parts.append(
+                backing_shell(
+                    {**model.layout, "rooms": [room]}, gap, BACKING_MARGIN, portals=portals
+                )
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            # A hand-edited layout.json: the scan still renders, without this room's shell.
+            warnings.warn(
+                f"{model.layout_dir / 'layout.json'}: room {room.get('name', k)!r} does not "
+                f"make a shell ({type(exc).__name__}: {exc}): rendered without its shell "
+                "behind the scan",
+                stacklevel=3,
+            )
     parts = [(m, lab) for m, lab in parts if len(m.faces)]
     if not parts:
         return
@@ -1223,15 +1241,15 @@ def _shell_surfaces(
             # albedo: the texture's own local mean holds what stood there (a sofa's
             # shadow, a rug). The mean, not the cluster's robust albedo, which follows
             # a patterned floor's median (docs/edit.md, "Photo textures").
-            detail, level = model.texture_detail(k)
             if not patterned:
                 scene[f"{prefix}_texture_{tex.name}"] = {
                     "type": "ply",
                     "filename": _shape_ply(work / f"{prefix}_texture_{tex.name}.ply", sv, sf[sel]),
                     "face_normals": True,
-                    "bsdf": _diffuse(np.clip(level, 0.0, 0.95), twosided=True),
+                    "bsdf": _diffuse(np.clip(model.texture_level(k), 0.0, 0.95), twosided=True),
                 }
                 continue
+            detail, level = model.texture_detail(k)
             image = write_exr(
                 work / f"{prefix}_texture_{tex.name}.exr", np.clip(detail * level, 0.0, 0.95)
             )
