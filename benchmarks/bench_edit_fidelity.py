@@ -206,6 +206,17 @@ def _key(*parts: Any) -> str:
     return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
+def _sampler_key(spp: int) -> tuple[str, ...]:
+    """The sampler a render at ``spp`` gets, for the cache keys: ``()`` for ``independent``
+    (the keys of renders from before the sampler was named stay valid), else its name:
+    renders by ``ldsampler`` (the default for powers of four until session 45, biased with
+    several lights) are not reused."""
+    from reroom.render.camera import default_sampler
+
+    name = default_sampler(spp)
+    return () if name == "independent" else (name,)
+
+
 def render_truth_cached(
     gt_scene: Path,
     ops: list[dict],
@@ -218,7 +229,7 @@ def render_truth_cached(
     from reroom.io.images import read_exr, write_exr
     from reroom.synth.edits import apply_edits, render_scene
 
-    key = _key(ops, spp, seed)
+    key = _key(ops, spp, seed, *_sampler_key(spp))
     scene_dir = cache / "truth" / _key(ops)
     files = [
         cache / "truth_renders" / f"{key}_{_key(v['c2w'].tolist(), v['intr_key'])}.exr"
@@ -638,7 +649,7 @@ def main() -> None:
             meta = dest / f"{_file_name(edit)}.json"
             want = _key(
                 mops, args.spp, args.model_max_depth, seed, cams_json, frames, model_key,
-                args.denoise,
+                args.denoise, *_sampler_key(args.spp),
             )  # fmt: skip
             if meta.is_file() and json.loads(meta.read_text()).get("bench_key") == want:
                 doc = json.loads(meta.read_text())

@@ -271,6 +271,19 @@ def test_write_is_atomic_on_failure(tmp_path: Path) -> None:
     assert [p.name for p in tmp_path.iterdir()] == ["result.json"]
 
 
+def test_an_evaluation_with_a_nan_figure_is_written_with_null(tmp_path: Path) -> None:
+    from reroom.io.atomic import atomic_write_json, nan_to_null
+
+    # A loop seam with no loop pair is NaN (reroom.hdr.metrics.seam_metric); the report's
+    # evaluation.json failed on a 12-frame scan with it.
+    ev = {"loop_seam": {"seam": float("nan"), "pairs": 0}, "v": np.array([1.0, np.inf])}
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        atomic_write_json(tmp_path / "bad.json", ev)
+    atomic_write_json(tmp_path / "ev.json", nan_to_null(ev))
+    back = json.loads((tmp_path / "ev.json").read_text())
+    assert back == {"loop_seam": {"seam": None, "pairs": 0}, "v": [1.0, None]}
+
+
 def test_ply_attributes_round_trip(tmp_path: Path) -> None:
     import trimesh
 
@@ -320,9 +333,11 @@ def test_binary_ply_fast_and_general_readers_agree(tmp_path: Path) -> None:
 
 
 def test_sampler_choice() -> None:
-    from reroom.render.camera import is_power_of_four, perspective_sensor
+    from reroom.render.camera import is_perfect_square, is_power_of_four, perspective_sensor
 
     assert [n for n in range(1, 300) if is_power_of_four(n)] == [1, 4, 16, 64, 256]
+    assert [n for n in range(1, 50) if is_perfect_square(n)] == [1, 4, 9, 16, 25, 36, 49]
     intr = Intrinsics.from_fov(32, 24, 60)
-    assert perspective_sensor(np.eye(4), intr, 64)["sampler"]["type"] == "ldsampler"
+    assert perspective_sensor(np.eye(4), intr, 64)["sampler"]["type"] == "multijitter"
+    assert perspective_sensor(np.eye(4), intr, 1024)["sampler"]["type"] == "multijitter"
     assert perspective_sensor(np.eye(4), intr, 32)["sampler"]["type"] == "independent"

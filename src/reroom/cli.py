@@ -90,7 +90,7 @@ def synth(
     spp: Annotated[
         int,
         typer.Option(
-            help="Path-tracing samples per pixel (powers of 4 use a low-discrepancy sampler). "
+            help="Path-tracing samples per pixel (perfect squares use a multi-jittered sampler). "
             "Below 64 the renderer's noise clips at the white level and the frames lose "
             "light, most in their brightest channel (docs/architecture.md)."
         ),

@@ -68,8 +68,8 @@ __all__ = [
 #: depth 8 (the default before session 7) dropped the light of the deeper bounces, which
 #: in these rooms (wall 0.66, ceiling 0.8) made every render about 2 % dark (ratio of
 #: means to the truth 0.926 -> 0.947 on the fidelity benchmark's input frames). Russian
-#: roulette keeps the long paths cheap; a cap stays, as an unbounded ``ldsampler`` path
-#: can hang (docs/benchmarks.md, "Synthetic scan generator").
+#: roulette keeps the long paths cheap; a cap stays, as an unbounded path hung with the
+#: ``ldsampler`` of before session 45 (docs/benchmarks.md, "Synthetic scan generator").
 DEFAULT_MAX_DEPTH = 64
 
 #: Glowing faces within this distance (metres) of a point light or of a line light's

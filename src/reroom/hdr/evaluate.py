@@ -45,7 +45,7 @@ from reroom.hdr.metrics import (
 from reroom.hdr.observe import vertex_normals
 from reroom.hdr.pipeline import OUTPUT_FILES
 from reroom.hdr.reproject import BestFrame
-from reroom.io.atomic import atomic_write_json
+from reroom.io.atomic import atomic_write_json, nan_to_null
 from reroom.io.mesh import read_ply
 from reroom.scan import load_scan
 
@@ -250,5 +250,5 @@ def evaluate_hdr(
             title="Per-frame scales relative to the reference frame, with the truth",
             truth=truth.scales / truth.scales[reference],
         )
-        atomic_write_json(hdr_dir / "evaluation.json", results)
+        atomic_write_json(hdr_dir / "evaluation.json", nan_to_null(results))
     return results

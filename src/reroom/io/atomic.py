@@ -67,6 +67,23 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot serialise {type(obj).__name__} to JSON")
 
 
+def nan_to_null(obj: Any) -> Any:
+    """``obj`` with every float that is not finite (a metric with nothing to measure,
+    e.g. a loop seam with no loop pair) replaced by ``None``: JSON has no NaN, and an
+    evaluation that cannot compute one figure should still be written."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: nan_to_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [nan_to_null(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return nan_to_null(obj.tolist())
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
+
+
 def atomic_write_json(target: str | Path, obj: Any, indent: int | None = 2) -> Path:
     """Serialise ``obj`` as JSON (numpy arrays become lists) and write it atomically."""
     text = json.dumps(obj, indent=indent, default=_json_default, allow_nan=False)

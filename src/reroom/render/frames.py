@@ -27,8 +27,9 @@ def auto_spp(
 ) -> int:
     """Samples per pixel for a denoised ``width x height`` render: about ``budget`` a view.
 
-    The largest power of four (what the low-discrepancy sampler takes) with ``width x
-    height x spp <= budget``, within ``[lo, hi]``: 16 at 160 x 120, 4 at 640 x 360. A
+    The largest power of four (a perfect square: what the multi-jittered sampler takes)
+    with ``width x height x spp <= budget``, within ``[lo, hi]``: 16 at 160 x 120, 4 at
+    640 x 360. A
     render's cost is its samples; the denoiser needs fewer per pixel at a higher
     resolution, where each pixel has more neighbours on the same surface (measured in
     docs/edit.md, "Denoising").

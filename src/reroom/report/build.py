@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from reroom import __version__
-from reroom.io.atomic import atomic_write_json, atomic_write_text
+from reroom.io.atomic import atomic_write_json, atomic_write_text, nan_to_null
 from reroom.report import sections as S
 from reroom.report.evaluation import evaluate_run
 from reroom.report.html import esc, page
@@ -89,7 +89,7 @@ def write_report(
     ev_note = ""
     if evaluate and scan.has_ground_truth:
         ev = evaluate_run(run)
-        atomic_write_json(run / "report" / "evaluation.json", ev)
+        atomic_write_json(run / "report" / "evaluation.json", nan_to_null(ev))
     elif evaluate:
         ev_note = "<p>This scan has no ground truth: no errors to show.</p>"
     body = [
