@@ -42,7 +42,7 @@ def default_sampler(spp: int) -> str:
     by one corner rendered 10-11 % darker once a second, dark, point light was added
     (64 and 256 spp; ``multijitter`` and ``independent`` within 0.3 %); a recovered
     model with its two point lights on rendered 6.7 % darker than the two rendered
-    alone and summed. ``multijitter`` is as smooth: relative pixel noise 0.146 against
+    alone and summed. ``multijitter`` is as smooth: relative pixel noise 0.147 against
     ``ldsampler``'s 0.157 and ``independent``'s 0.204 on that model at 64 spp
     (docs/benchmarks.md, "Session 45").
     """
