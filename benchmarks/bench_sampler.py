@@ -33,37 +33,17 @@ SAMPLERS = ("ldsampler", "independent", "multijitter", "orthogonal", "stratified
 
 def plane_room(sampler: str, spp: int) -> tuple[float, float]:
     """(lamp alone / lamp beside a dark light, two lights alone summed / together)."""
-    from test_render_sampler import _planes, _point
+    from test_render_sampler import _mean, _point
 
-    from reroom.render.camera import perspective_sensor
     from reroom.render.mitsuba_env import mitsuba
-    from reroom.scan.camera import Intrinsics
 
     mi = mitsuba()
-    eye, target = np.array([1.0, 0.8, 1.3]), np.array([3.8, 2.8, 2.0])
-    fwd = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, np.cross(right, fwd), -fwd, eye
-    sensor = perspective_sensor(c2w, Intrinsics.from_fov(48, 32, 90), spp, sampler=sampler)
-
-    def mean(lights: dict) -> float:
-        scene = {
-            "type": "scene",
-            "integrator": {"type": "path", "max_depth": 16},
-            "sensor": sensor,
-            **_planes(mi),
-            **lights,
-        }
-        return float(np.asarray(mi.render(mi.load_dict(scene), seed=3))[..., :3].mean())
-
     lamp, other = _point([3.8, 2.8, 2.3], 1.0), _point([0.6, 2.5, 0.8], 0.5)
     dark = _point([1.0, 1.0, 1.0], 0.0)
-    alone = mean({"lamp": lamp})
-    beside_dark = mean({"lamp": lamp, "dark": dark})
-    together = mean({"lamp": lamp, "other": other})
-    return alone / beside_dark, (alone + mean({"other": other})) / together
+    alone = _mean(mi, {"lamp": lamp}, spp, sampler)
+    beside_dark = _mean(mi, {"lamp": lamp, "dark": dark}, spp, sampler)
+    together = _mean(mi, {"lamp": lamp, "other": other}, spp, sampler)
+    return alone / beside_dark, (alone + _mean(mi, {"other": other}, spp, sampler)) / together
 
 
 def model_points(run: Path, frame: int, sampler: str, spp: int) -> tuple[float, float]:

@@ -40,19 +40,26 @@ def _planes(mi) -> dict:
     }
 
 
-def _mean(mi, lights: dict, spp: int) -> float:
-    from reroom.render.camera import perspective_sensor
-
+def _corner_view() -> np.ndarray:
+    """Camera-to-world (OpenGL axes) of a camera looking into the room's far top corner."""
     eye, target = np.array([1.0, 0.8, 1.3]), np.array([3.8, 2.8, 2.0])
     fwd = (target - eye) / np.linalg.norm(target - eye)
     right = np.cross(fwd, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     c2w = np.eye(4)
     c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, np.cross(right, fwd), -fwd, eye
+    return c2w
+
+
+def _mean(mi, lights: dict, spp: int, sampler: str | None = None) -> float:
+    """Mean radiance of a 48 x 32 view of the six-plane room lit by ``lights``."""
+    from reroom.render.camera import perspective_sensor
+
+    intr = Intrinsics.from_fov(48, 32, 90)
     scene = {
         "type": "scene",
         "integrator": {"type": "path", "max_depth": 16},
-        "sensor": perspective_sensor(c2w, Intrinsics.from_fov(48, 32, 90), spp),
+        "sensor": perspective_sensor(_corner_view(), intr, spp, sampler=sampler),
         **_planes(mi),
         **lights,
     }
