@@ -19,6 +19,7 @@ reroom's default for powers of four until session 45 (docs/edit.md, "The sampler
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -48,14 +49,11 @@ def plane_room(sampler: str, spp: int) -> tuple[float, float]:
 
 def model_points(run: Path, frame: int, sampler: str, spp: int) -> tuple[float, float]:
     """(the model's point lights alone summed / together, relative pixel noise)."""
-    import functools
-
-    import reroom.render.frames as frames_mod
     from reroom.edit.apply import edited_scene
-    from reroom.render.camera import perspective_sensor
+    from reroom.render.frames import FrameRenderer
     from reroom.scan import load_scan
 
-    scene_doc = __import__("json").loads((run / "invert" / "scene.json").read_text())
+    scene_doc = json.loads((run / "invert" / "scene.json").read_text())
     names = [light["name"] for light in scene_doc["lights"]]
     points = [light["name"] for light in scene_doc["lights"] if light["type"] == "point"]
     if len(points) < 2:
@@ -67,20 +65,15 @@ def model_points(run: Path, frame: int, sampler: str, spp: int) -> tuple[float, 
         k for k, v in scene.items() if isinstance(v, dict) and v.get("type") == "reroom_goniometric"
     ]
     fr = load_scan(run, check_images=False).frames[frame]
-    frames_mod.perspective_sensor = functools.partial(perspective_sensor, sampler=sampler)
-    try:
 
-        def render(d: dict, seed: int) -> np.ndarray:
-            r = frames_mod.FrameRenderer(d, fr.intrinsics, spp, denoise=False)
-            return r.render(fr.c2w, seed=seed)
+    def render(d: dict, seed: int) -> np.ndarray:
+        return FrameRenderer(d, fr.intrinsics, spp, sampler=sampler).render(fr.c2w, seed=seed)
 
-        together = [render(scene, s) for s in (5, 6)]
-        parts = sum(
-            render({k: v for k, v in scene.items() if k not in keys or k == keep}, 5).mean()
-            for keep in keys
-        )
-    finally:
-        frames_mod.perspective_sensor = perspective_sensor
+    together = [render(scene, s) for s in (5, 6)]
+    parts = sum(
+        render({k: v for k, v in scene.items() if k not in keys or k == keep}, 5).mean()
+        for keep in keys
+    )
     noise = np.sqrt(np.mean((together[0] - together[1]) ** 2) / 2.0) / together[0].mean()
     return float(parts / together[0].mean()), float(noise)
 
@@ -102,7 +95,7 @@ def main() -> None:
             f" {args.run.name} frame {args.frame}: point lights summed / together | pixel noise |"
         )
     print(head + " seconds |")
-    print("|---" * (head.count("|") - 0) + "|")
+    print("|---" * head.count("|") + "|")
     for sampler in SAMPLERS:
         t0 = time.perf_counter()
         dark, pair = plane_room(sampler, args.spp)

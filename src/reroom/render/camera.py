@@ -22,7 +22,7 @@ def mitsuba_to_world(c2w: np.ndarray) -> Any:
 
 
 def is_power_of_four(n: int) -> bool:
-    """True for 1, 4, 16, 64, 256, ... (the sample counts :func:`reroom.render.frames.auto_spp` picks)."""
+    """True for 1, 4, 16, 64, 256, ... (the counts :func:`reroom.render.frames.auto_spp` picks)."""
     return n > 0 and n & (n - 1) == 0 and (n.bit_length() - 1) % 2 == 0
 
 
@@ -39,10 +39,10 @@ def default_sampler(spp: int) -> str:
     Mitsuba's low-discrepancy sampler, the default until session 45: with more than one
     emitter its estimate is biased (the sample that picks the emitter is, by our reading,
     correlated with the path's later dimensions). In a room of six planes, a point light
-    by one corner rendered 10-11 % darker once a second, dark, point light was added
-    (64 and 256 spp; ``multijitter`` and ``independent`` within 0.3 %); a recovered
-    model with its two point lights on rendered 6.7 % darker than the two rendered
-    alone and summed. ``multijitter`` is as smooth: relative pixel noise 0.147 against
+    by one corner rendered alone at 0.90 of its brightness beside a second, dark, point
+    light (64 and 256 spp; ``multijitter`` and ``independent`` within 0.3 % of 1); a
+    recovered model's two point lights rendered alone and summed came to 6.7 % more than
+    the two together. ``multijitter`` is as smooth: relative pixel noise 0.147 against
     ``ldsampler``'s 0.157 and ``independent``'s 0.204 on that model at 64 spp
     (docs/benchmarks.md, "Session 45").
     """

@@ -29,10 +29,9 @@ def auto_spp(
 
     The largest power of four (a perfect square: what the multi-jittered sampler takes)
     with ``width x height x spp <= budget``, within ``[lo, hi]``: 16 at 160 x 120, 4 at
-    640 x 360. A
-    render's cost is its samples; the denoiser needs fewer per pixel at a higher
-    resolution, where each pixel has more neighbours on the same surface (measured in
-    docs/edit.md, "Denoising").
+    640 x 360. A render's cost is its samples; the denoiser needs fewer per pixel at a
+    higher resolution, where each pixel has more neighbours on the same surface
+    (measured in docs/edit.md, "Denoising").
     """
     per_pixel = budget / max(int(width) * int(height), 1)
     spp = lo
@@ -55,8 +54,12 @@ class FrameRenderer:
         spp: int,
         denoise: bool = False,
         aux_spp: int = 4,
+        sampler: str | None = None,
     ) -> None:
         """Load ``scene_dict`` for frames of intrinsics ``intr`` at ``spp`` samples per pixel.
+
+        ``sampler``: a Mitsuba sampler's name; default
+        :func:`reroom.render.camera.default_sampler`'s for ``spp``.
 
         With ``denoise``, each frame is passed through OIDN
         (:func:`reroom.render.denoise.denoise`) guided by the first-hit albedo and normal
@@ -79,7 +82,7 @@ class FrameRenderer:
         # Glowing fittings of point and line lights (reroom.render.glow): composited
         # after the path tracer, as they are not part of the light transport.
         self.glows = glow_sources(d, glows)
-        d["sensor"] = perspective_sensor(np.eye(4), intr, spp)
+        d["sensor"] = perspective_sensor(np.eye(4), intr, spp, sampler=sampler)
         self.scene = mi.load_dict(d, optimize=False)
         self.params = mi.traverse(self.scene)
         if "sensor.to_world" not in self.params:
