@@ -34,6 +34,12 @@ reads ``ground_truth/``, which the estimate never does.
     indirect irradiance ``pi (L - L_direct) / rho``, ``L_direct`` rendered at depth 2;
     and ``E_ind`` from the scan's HDR radiance (divided by its radiance scale ``k``) on
     the receivers both runs share, per channel.
+``--subdivide EDGE[,EDGE]``
+    ``E_ind`` from the true vertex radiance (true lights, 512 rays, the bounce fill and
+    eq. 5.9) on the scan mesh and on the mesh subdivided to each ``EDGE`` metres, the new
+    vertices probed as the generator probes its own, against the path tracer's indirect
+    light (1024 spp) at 800 receivers per cluster: how much of ``E_ind``'s deficit is the
+    radiance read between too few vertices (a clean mesh's 8 cm triangles).
 ``--bands``
     HDR / true radiance per band of true radiance (relative to the overall ratio of sums),
     binned by ``--bin-by PLY`` (an independent truth sample, so that the truth's own noise
@@ -52,7 +58,10 @@ reads ``ground_truth/``, which the estimate never does.
     problem re-solved with the line lights fixed at their truth (how flat the
     light-albedo valley is), and per cluster the model's direct and indirect irradiance at
     the truth against the path tracer's (depth 2 for direct light), with the floor in
-    1 m cells. Needs a window or a line light to say much.
+    1 m cells; where the solution's data cost beats the truth's (by cluster and wall
+    height), and the clusters by the model's indirect share. Writes ``WORK/at_truth.npz``
+    (every receiver's figures). On a fused or corrupted mesh the path tracer probes the
+    true surface point each vertex stands for, as the generator does.
 ``--interpolation``
     Path-traced radiance at random points inside the scan mesh's faces against the
     barycentric interpolation of the truth's vertex radiance, per label: the radiance
@@ -110,10 +119,10 @@ reads ``ground_truth/``, which the estimate never does.
     indirect light, binned by ``NAME``'s share of the path tracer's light there. Per bin
     and light: its share, the model's irradiance at the true intensities (a point or line
     light's true profile) over the path tracer's (the light model's own error: basis,
-    transfer), and the solved over the path
-    tracer's (what the solve made of it). With a window, the cube cells that send those
-    receivers most light, true against solved. Which term of the model, in which
-    channel, a light's solved colour or power absorbs.
+    transfer), and the solved over the path tracer's (what the solve made of it); the same
+    for the walls by height. With a window, the cube cells that send those receivers most
+    light, true against solved. Which term of the model, in which channel, a light's
+    solved colour or power absorbs.
 ``--render-consistency``
     Each solved light rendered alone (every surface white, path depth 2) against the
     solve's own ``F . I`` at 4000 clustered receivers, with the point and line emitters'
@@ -197,9 +206,8 @@ def reprobe(scan: Path, spp: int, eval_dir: Path) -> None:
 
     scene = _truth_scene(scan)
     gt = read_ply(scan / "ground_truth" / "vertices.ply")
-    mesh = read_ply(scan / "mesh.ply")
-    normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
-    rad, err = probe_radiance(scene, np.asarray(mesh.vertices), normals, spp, seed=7)
+    pts, normals = _probe_points(scan)
+    rad, err = probe_radiance(scene, pts, normals, spp, seed=7)
     attrs = dict(gt.vertex_attributes, radiance=rad, radiance_stderr=err)
     tmp = eval_dir.parent / (eval_dir.name + ".vertices.ply")
     write_ply(tmp, trimesh.Trimesh(gt.vertices, gt.faces, process=False), attrs)
@@ -231,6 +239,42 @@ def _truth_scene(scan: Path, max_depth: int | None = None):
     if max_depth is not None:
         desc["integrator"] = {"type": "path", "max_depth": max_depth}
     return mitsuba().load_dict(mitsuba_scene_dict(desc, scene_dir))
+
+
+def _probe_points(scan: Path, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where the generator probed the true radiance of the scan mesh's vertices ``rows``.
+
+    Returns ``(points, normals)``: :func:`_on_true_surface` of the vertices, with their
+    one-ring normals.
+    """
+    import trimesh
+
+    mesh = read_ply(scan / "mesh.ply")
+    normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
+    rows = np.arange(len(normals)) if rows is None else np.asarray(rows)
+    pts, nrm = np.asarray(mesh.vertices)[rows], normals[rows]
+    return _on_true_surface(scan, pts, nrm), nrm
+
+
+def _on_true_surface(scan: Path, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """The true surface points that points of the scan mesh stand for.
+
+    A clean mesh lies on the true surface: the points themselves. A fused or corrupted
+    mesh lies up to centimetres off it, so the generator probes the true surface point
+    each vertex stands for (``reroom.synth.groundtruth.transfer_truth``), seen along the
+    vertex normal; probing the vertex itself reads 0 wherever the true surface is more
+    than the probe's offset behind it.
+    """
+    from reroom.synth.groundtruth import clean_surface, transfer_truth
+    from reroom.synth.scene import load_scene_description
+
+    gt = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())
+    if gt.get("mesh", {}).get("kind", "clean") == "clean":
+        return np.asarray(points, float)
+    scene_dir = scan / "ground_truth" / "scene"
+    desc = load_scene_description(scene_dir)
+    truth = transfer_truth(clean_surface(desc, scene_dir), desc, scene_dir, points, normals)
+    return np.asarray(truth["surface_point"], float)
 
 
 def _with_lights_fixed(problem, fixed: dict[int, np.ndarray]):
@@ -459,7 +503,6 @@ def _true_intensities(
 def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> None:
     """How the truth run's model fits at the true parameters, and where it misses."""
     import scipy.sparse as sp
-    import trimesh
 
     from reroom.invert.solve import indirect_weights
     from reroom.render.frames import probe_radiance
@@ -483,10 +526,13 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
             for i, b in enumerate(prob.lights)
         }
 
-    def cost(rho: np.ndarray, inten: dict) -> float:
+    def cost_per_receiver(rho: np.ndarray, inten: dict) -> np.ndarray:
         e = prob.indirect + sum(irradiance(inten).values())
         r = np.abs(np.sqrt(w) * (prob.radiance - rho[prob.cluster] / np.pi * e) / scale)
-        return float(np.where(r <= delta, 0.5 * r * r, delta * (r - 0.5 * delta)).sum())
+        return np.where(r <= delta, 0.5 * r * r, delta * (r - 0.5 * delta)).sum(axis=1)
+
+    def cost(rho: np.ndarray, inten: dict) -> float:
+        return float(cost_per_receiver(rho, inten).sum())
 
     print(
         f"\ndata cost (Huber, eq. 5.8 weights): solution {cost(sol.albedo, sol.intensities):.4g}, "
@@ -507,9 +553,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
         )
     # The path tracer's direct (depth 2) and total radiance at the receivers.
     scene = _truth_scene(scan, max_depth=2)
-    mesh = read_ply(scan / "mesh.ply")
-    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-    pts, nrm = np.asarray(mesh.vertices)[rows], np.asarray(tm.vertex_normals)[rows]
+    pts, nrm = _probe_points(scan, rows)
     direct, _ = probe_radiance(scene, pts, nrm, spp, seed=1)
     rho_v = np.maximum(true_albedo[rows], 1e-3)
     e_dir_true = np.pi * direct / rho_v
@@ -527,6 +571,66 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
             f"| {name} | {_ratio(pred[m], prob.radiance[m])} | {_ratio(e_dir[m], e_dir_true[m])} | "
             f"{_ratio(prob.indirect[m], e_ind_true[m])} |"
         )
+    # Where the solution fits better than the truth: the receivers that pull the solve off
+    # the true parameters, by cluster and (walls) height band.
+    pred_sol = (
+        sol.albedo[prob.cluster]
+        / np.pi
+        * (prob.indirect + sum(irradiance(sol.intensities).values()))
+    )
+    gain = cost_per_receiver(rho_true, true_int) - cost_per_receiver(sol.albedo, sol.intensities)
+    print(
+        f"\nwhere the solution's data cost is lower than the truth's (total gain "
+        f"{gain.sum():.4g}); predicted / observed (luminance) at the truth and at the solution:\n"
+    )
+    print("| receivers | count | gain | at the truth | at the solution |\n|---|---|---|---|---|")
+    groups = [(name, prob.cluster == c) for c, name in enumerate(prob.cluster_names)]
+    if "wall" in prob.cluster_names:
+        wall = prob.cluster == prob.cluster_names.index("wall")
+        z = pts[:, 2] - pts[wall, 2].min() if wall.any() else pts[:, 2]
+        for lo, hi in [(0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, np.inf)]:
+            groups.append((f"wall, {lo:g}-{hi:g} m up", wall & (z >= lo) & (z < hi)))
+    for name, m in groups:
+        if m.any():
+            print(
+                f"| {name} | {m.sum()} | {gain[m].sum():+.4g} | "
+                f"{(pred[m] @ lum).sum() / (prob.radiance[m] @ lum).sum():.3f} | "
+                f"{(pred_sol[m] @ lum).sum() / (prob.radiance[m] @ lum).sum():.3f} |"
+            )
+    # Everything above per receiver, for one-off looks without re-running the probes.
+    np.savez_compressed(
+        work / "at_truth.npz", rows=rows, points=pts, cluster=prob.cluster,
+        radiance=prob.radiance, weight=w, e_dir=e_dir, e_dir_true=e_dir_true,
+        e_ind=prob.indirect, e_ind_true=e_ind_true, predicted=pred,
+        predicted_solution=pred_sol, huber_delta=delta, scale=scale,
+    )  # fmt: skip
+    # The same by the indirect share: eq. 5.8's weights favour receivers with some
+    # indirect light, and those pin the albedos' scale (rho = pi L / E_ind where the lights
+    # send little), so a model error there moves every albedo and light. Binned by the
+    # model's share at the truth, not the path tracer's: bins chosen on a noisy estimate
+    # read it low where they select it low (on the issue's scan, binned by the path
+    # tracer's share, the model's direct light read 1.6 times the path tracer's on the
+    # most indirect walls and 0.86 on the least; by the model's share, 0.88 and 1.15).
+    share = (prob.indirect @ lum) / np.maximum((prob.indirect + e_dir) @ lum, 1e-300)
+    wl = w @ lum
+    print(
+        "\n| cluster | indirect share (model at the truth) | receivers | share of eq. 5.8's weight | "
+        "predicted / observed | E_dir model / path tracer | E_ind model / path tracer |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    edges = [0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.01]
+    for c, name in enumerate(prob.cluster_names):
+        m = prob.cluster == c
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            s = m & (share >= lo) & (share < hi)
+            if s.sum() < 20:
+                continue
+            print(
+                f"| {name} | {lo:.1f}-{min(hi, 1.0):.1f} | {s.sum()} | "
+                f"{wl[s].sum() / max(wl[m].sum(), 1e-300):.2f} | "
+                f"{_ratio(pred[s], prob.radiance[s])} | {_ratio(e_dir[s], e_dir_true[s])} | "
+                f"{_ratio(prob.indirect[s], e_ind_true[s])} |"
+            )
     floor = (
         prob.cluster == prob.cluster_names.index("floor") if "floor" in prob.cluster_names else None
     )
@@ -833,17 +937,15 @@ def _window_from_truth(scan: Path, problem, k: np.ndarray):
 
 def indirect(scan: Path, work: Path) -> None:
     """``E_ind`` (true radiance, hemisphere rays) against the path tracer's indirect light."""
-    import trimesh
 
     from reroom.render.frames import probe_radiance
 
     true_rad, true_albedo, label = _truth(scan)
     res = _invert(scan, work / "indirect_true_radiance", true_rad)
     scene = _truth_scene(scan, max_depth=2)  # emission + direct light only
-    mesh = read_ply(scan / "mesh.ply")
     rows = res.problem_vertices
-    normals = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).vertex_normals)
-    direct, _ = probe_radiance(scene, np.asarray(mesh.vertices)[rows], normals[rows], 256, seed=1)
+    pts, nrm = _probe_points(scan, rows)
+    direct, _ = probe_radiance(scene, pts, nrm, 256, seed=1)
     rho = np.maximum(true_albedo[rows], 1e-3)
     e_true = np.pi * (true_rad[rows] - direct) / rho
     e_ours = res.problem.indirect
@@ -875,6 +977,125 @@ def indirect(scan: Path, work: Path) -> None:
         )
         ratio = " / ".join(f"{x:.3f}" for x in e_ours[m].sum(0) / e_true[m].sum(0))
         print(f"| {name} | {m.sum()} | {ratio} | {hdr} | {share:.2f} |")
+
+
+def subdivided_indirect(
+    scan: Path, work: Path, edges: list[float], per_cluster: int = 800, rays: int = 512
+) -> None:
+    """``E_ind`` from vertex radiance on the scan mesh and on the mesh subdivided to each
+    of ``edges`` metres (the new vertices probed as the generator probes its own), against
+    the path tracer's indirect light at the same receivers: how much of ``E_ind``'s
+    deficit is the radiance field read between too few vertices."""
+    import time
+
+    import trimesh
+
+    from reroom.invert.fill import bounce_fill
+    from reroom.invert.pipeline import CLUSTER_LABELS, emitter_classes
+    from reroom.invert.transfer import hemisphere_transfer
+    from reroom.invert.windows import WindowOpening
+    from reroom.lights import load_lights
+    from reroom.rays import RayCaster
+    from reroom.render.frames import probe_radiance
+
+    true_rad, true_albedo, label = _truth(scan)
+    mesh = read_ply(scan / "mesh.ply")
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    normals = np.asarray(trimesh.Trimesh(v, f, process=False).vertex_normals)
+    lights = load_lights(_true_lights_scan(scan, work) / "lights" / "lights.json")
+    ids = np.asarray(lights.vertex_light_id)
+    margin = InvertOptions().fixture_margin
+    _, wins, area_of, window_of, on_light = emitter_classes(lights.lights, ids, v, margin)
+    openings = [
+        WindowOpening(
+            w.name, *(np.asarray(w.geometry[k], float) for k in ("centre", "half_u", "half_v")),
+            np.asarray(w.geometry["normal"], float),
+        )
+        for w in wins
+    ]  # fmt: skip
+    seen = np.isfinite(true_rad).all(axis=1)
+    rng = np.random.default_rng(0)
+    recv = np.concatenate(
+        [
+            rng.choice(c, min(per_cluster, len(c)), replace=False)
+            for c in (
+                np.flatnonzero(seen & (label == lab) & ~on_light) for lab in CLUSTER_LABELS.values()
+            )
+            if len(c)
+        ]
+    )
+    scene = _truth_scene(scan)
+    at = _on_true_surface(scan, v[recv], normals[recv])
+    full, _ = probe_radiance(scene, at, normals[recv], 1024, seed=3)
+    direct, _ = probe_radiance(_truth_scene(scan, max_depth=2), at, normals[recv], 1024, seed=4)
+    e_traced = np.pi * (full - direct) / np.maximum(true_albedo[recv], 1e-3)
+
+    def e_ind(verts, faces, rad, seen_v, area_v, window_v, on_v, fill: bool) -> np.ndarray:
+        m = trimesh.Trimesh(verts, faces, process=False)
+        caster = RayCaster(m)
+        rad = np.where(seen_v[:, None], rad, 0.0)
+        if fill:  # the pipeline's default unobserved fill
+            rad, reached = bounce_fill(
+                caster, m, rad, seen_v, np.asarray(m.vertex_normals), area_v, window_v,
+                excluded=on_v, seed=7,
+            )  # fmt: skip
+            seen_v = seen_v | reached
+        h = hemisphere_transfer(
+            caster, m, recv, normals[recv], rad, seen_v, area_v, openings, None,
+            rays_per_vertex=rays, seed=1, window_of_vertex=window_v,
+        )  # fmt: skip
+        return h.indirect_rescaled()
+
+    print(
+        f"\nE_ind ({rays} rays, eq. 5.9 after the bounce fill) / the path tracer's indirect "
+        f"light (1024 spp) at {len(recv)} receivers, r/g/b sums:\n"
+    )
+    print("| radiance read from | vertices | wall | floor | ceiling |\n|---|---|---|---|---|")
+    rl = label[recv]
+
+    def row(name: str, n: int, e: np.ndarray) -> None:
+        cells = [
+            "/".join(f"{x:.3f}" for x in e[rl == lab].sum(0) / e_traced[rl == lab].sum(0))
+            for lab in CLUSTER_LABELS.values()
+        ]
+        print(f"| {name} | {n} | " + " | ".join(cells) + " |", flush=True)
+
+    row(
+        "the scan mesh's vertices",
+        len(v),
+        e_ind(v, f, true_rad, seen, area_of, window_of, on_light, True),
+    )
+    for edge in edges:
+        t = time.perf_counter()
+        fv, ff, parent = trimesh.remesh.subdivide_to_size(
+            v, f, max_edge=edge, max_iter=20, return_index=True
+        )
+        if not np.allclose(fv[: len(v)], v):
+            raise RuntimeError("subdivide_to_size reordered the scan mesh's vertices")
+        # Each new vertex takes the light classes of the nearest corner of its parent face.
+        owner = np.empty(len(fv), np.int64)
+        for k in range(3):
+            owner[ff[:, k]] = parent
+        corners = f[owner]
+        nearest = np.argmin(np.linalg.norm(v[corners] - fv[:, None, :], axis=2), axis=1)
+        corner = corners[np.arange(len(fv)), nearest]
+        corner[: len(v)] = np.arange(len(v))
+        _, _, area_f, window_f, on_f = emitter_classes(lights.lights, ids[corner], fv, margin)
+        fn = np.asarray(trimesh.Trimesh(fv, ff, process=False).vertex_normals)
+        new = np.arange(len(v), len(fv))
+        rad_f = np.concatenate(
+            [
+                true_rad,
+                hidden_as_unobserved(
+                    probe_radiance(
+                        scene, _on_true_surface(scan, fv[new], fn[new]), fn[new], 256, seed=5
+                    )[0]
+                ),
+            ]
+        )
+        seen_f = np.isfinite(rad_f).all(axis=1)
+        e = e_ind(fv, ff, rad_f, seen_f, area_f, window_f, on_f, True)
+        row(f"subdivided to {edge:g} m ({time.perf_counter() - t:.0f} s)", len(fv), e)
 
 
 def bands(scan: Path, bin_by: Path | None) -> None:
@@ -1637,8 +1858,6 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
     """The truth run's irradiance light by light at ``name``'s receivers (see the notes)."""
     import copy
 
-    import trimesh
-
     from reroom.render import mitsuba
     from reroom.render.frames import probe_radiance
     from reroom.synth.scene import load_scene_description, mitsuba_scene_dict
@@ -1662,9 +1881,7 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
         b.name: np.asarray(f[:, off[i] : off[i + 1]] @ sol.intensities[b.name])
         for i, b in enumerate(prob.lights)
     }
-    mesh = read_ply(scan / "mesh.ply")
-    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-    pts, nrm = np.asarray(mesh.vertices)[rows], np.asarray(tm.vertex_normals)[rows]
+    pts, nrm = _probe_points(scan, rows)
     rho_v = np.maximum(true_albedo[rows], 1e-3)
     desc0 = load_scene_description(scene_dir)
     mi = mitsuba()
@@ -1717,6 +1934,34 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
             f"| {lo:.2f}-{min(hi, 1):.2f} | {int(sel.sum())} | E_ind | {sh:.3f} | "
             f"{ratio(prob.indirect[sel], traced_ind[sel])} | (fixed) |"
         )
+    if "wall" in prob.cluster_names:
+        # The walls by height: where `--at-truth` finds the solution beating the truth.
+        wall = prob.cluster == prob.cluster_names.index("wall")
+        z = pts[:, 2] - pts[wall, 2].min()
+        print(
+            "\nThe walls by height above their lowest receiver; per light its share, the "
+            "model at the true intensities / path tracer and the solved / path tracer:\n"
+        )
+        print(
+            "| wall, m up | receivers | light | its share | model at truth / traced | solved / traced |"
+        )
+        print("|---|---|---|---|---|---|")
+        for lo, hi in [(0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, np.inf)]:
+            sel = wall & (z >= lo) & (z < hi)
+            if not sel.any():
+                continue
+            total = float((traced["all"][sel] @ lum).sum())
+            for n in names:
+                print(
+                    f"| {lo:g}-{hi:g} | {int(sel.sum())} | {n} | "
+                    f"{float((traced[n][sel] @ lum).sum()) / total:.3f} | "
+                    f"{ratio(model[n][sel], traced[n][sel])} | {ratio(solved[n][sel], traced[n][sel])} |"
+                )
+            print(
+                f"| {lo:g}-{hi:g} | {int(sel.sum())} | E_ind | "
+                f"{float((traced_ind[sel] @ lum).sum()) / total:.3f} | "
+                f"{ratio(prob.indirect[sel], traced_ind[sel])} | (fixed) |"
+            )
     for i, b in enumerate(prob.lights):
         if b.kind != "window":
             continue
@@ -1766,6 +2011,9 @@ def main() -> None:
     ap.add_argument("--at-truth", action="store_true", help="the truth run's model at the truth")
     ap.add_argument(
         "--interpolation", action="store_true", help="radiance inside faces vs interpolated"
+    )
+    ap.add_argument(
+        "--subdivide", default="", help="comma-separated edge lengths (m): E_ind between vertices"
     )
     ap.add_argument("--bands", action="store_true")
     ap.add_argument("--bin-by", type=Path, help="independent truth PLY for --bands")
@@ -1845,6 +2093,8 @@ def main() -> None:
         window_photos(args.scan)
     if args.indirect:
         indirect(args.scan, args.work)
+    if args.subdivide:
+        subdivided_indirect(args.scan, args.work, [float(x) for x in args.subdivide.split(",")])
     if args.bands:
         bands(args.scan, args.bin_by)
     if args.hdr_variants:
