@@ -585,9 +585,13 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
     )
     print("| receivers | count | gain | at the truth | at the solution |\n|---|---|---|---|---|")
     groups = [(name, prob.cluster == c) for c, name in enumerate(prob.cluster_names)]
-    if "wall" in prob.cluster_names:
-        wall = prob.cluster == prob.cluster_names.index("wall")
-        z = pts[:, 2] - pts[wall, 2].min() if wall.any() else pts[:, 2]
+    wall = (
+        prob.cluster == prob.cluster_names.index("wall")
+        if "wall" in prob.cluster_names
+        else np.zeros(len(prob.cluster), bool)
+    )
+    if wall.any():
+        z = pts[:, 2] - pts[wall, 2].min()
         for lo, hi in [(0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, np.inf)]:
             groups.append((f"wall, {lo:g}-{hi:g} m up", wall & (z >= lo) & (z < hi)))
     for name, m in groups:
@@ -1934,9 +1938,13 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
             f"| {lo:.2f}-{min(hi, 1):.2f} | {int(sel.sum())} | E_ind | {sh:.3f} | "
             f"{ratio(prob.indirect[sel], traced_ind[sel])} | (fixed) |"
         )
-    if "wall" in prob.cluster_names:
+    wall = (
+        prob.cluster == prob.cluster_names.index("wall")
+        if "wall" in prob.cluster_names
+        else np.zeros(len(prob.cluster), bool)
+    )
+    if wall.any():
         # The walls by height: where `--at-truth` finds the solution beating the truth.
-        wall = prob.cluster == prob.cluster_names.index("wall")
         z = pts[:, 2] - pts[wall, 2].min()
         print(
             "\nThe walls by height above their lowest receiver; per light its share, the "
