@@ -277,6 +277,19 @@ def _on_true_surface(scan: Path, points: np.ndarray, normals: np.ndarray) -> np.
     return np.asarray(truth["surface_point"], float)
 
 
+def _wall_bands(problem, points: np.ndarray) -> list[tuple[float, float, np.ndarray]]:
+    """The wall receivers in 0.5 m bands of height above the lowest one, as
+    ``(low, high, mask)``; empty without a wall cluster or wall receivers."""
+    if "wall" not in problem.cluster_names:
+        return []
+    wall = problem.cluster == problem.cluster_names.index("wall")
+    if not wall.any():
+        return []
+    z = points[:, 2] - points[wall, 2].min()
+    edges = [(0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, np.inf)]
+    return [(lo, hi, wall & (z >= lo) & (z < hi)) for lo, hi in edges]
+
+
 def _with_lights_fixed(problem, fixed: dict[int, np.ndarray]):
     """``problem`` with the lights ``fixed`` (block index -> intensities) moved into ``E_ind``."""
     import scipy.sparse as sp
@@ -585,15 +598,7 @@ def at_truth(scan: Path, work: Path, solve: SolveOptions, spp: int = 512) -> Non
     )
     print("| receivers | count | gain | at the truth | at the solution |\n|---|---|---|---|---|")
     groups = [(name, prob.cluster == c) for c, name in enumerate(prob.cluster_names)]
-    wall = (
-        prob.cluster == prob.cluster_names.index("wall")
-        if "wall" in prob.cluster_names
-        else np.zeros(len(prob.cluster), bool)
-    )
-    if wall.any():
-        z = pts[:, 2] - pts[wall, 2].min()
-        for lo, hi in [(0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, np.inf)]:
-            groups.append((f"wall, {lo:g}-{hi:g} m up", wall & (z >= lo) & (z < hi)))
+    groups += [(f"wall, {lo:g}-{hi:g} m up", m) for lo, hi, m in _wall_bands(prob, pts)]
     for name, m in groups:
         if m.any():
             print(
@@ -1938,14 +1943,9 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
             f"| {lo:.2f}-{min(hi, 1):.2f} | {int(sel.sum())} | E_ind | {sh:.3f} | "
             f"{ratio(prob.indirect[sel], traced_ind[sel])} | (fixed) |"
         )
-    wall = (
-        prob.cluster == prob.cluster_names.index("wall")
-        if "wall" in prob.cluster_names
-        else np.zeros(len(prob.cluster), bool)
-    )
-    if wall.any():
+    bands = _wall_bands(prob, pts)
+    if bands:
         # The walls by height: where `--at-truth` finds the solution beating the truth.
-        z = pts[:, 2] - pts[wall, 2].min()
         print(
             "\nThe walls by height above their lowest receiver; per light its share, the "
             "model at the true intensities / path tracer and the solved / path tracer:\n"
@@ -1954,8 +1954,7 @@ def per_light(scan: Path, work: Path, name: str, spp: int = 256) -> None:
             "| wall, m up | receivers | light | its share | model at truth / traced | solved / traced |"
         )
         print("|---|---|---|---|---|---|")
-        for lo, hi in [(0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, np.inf)]:
-            sel = wall & (z >= lo) & (z < hi)
+        for lo, hi, sel in bands:
             if not sel.any():
                 continue
             total = float((traced["all"][sel] @ lum).sum())
