@@ -25,6 +25,18 @@ reads ``ground_truth/``, which the estimate never does.
     The photos' pixels seen through the window, binned per cube cell: how much of each
     cell they saw, how much was saturated, and what they say about its radiance (the
     unsaturated mean; a lower bound with the saturated samples) against the truth.
+``--scales``
+    The HDR radiance's scale ``k`` from the evaluation (a ratio of sums over the
+    clustered vertices) and from the exposures alone (true over solved frame scales,
+    geometric mean over frames).
+``--truth-resolves``
+    The truth run's problem re-solved with least squares instead of the Huber loss, a
+    wider Huber, no eq. 5.8 reweighting and every receiver instead of the subset, then
+    without the receivers within 0.5 / 1 / 1.5 m of each point or line light: albedo
+    errors, and each light's power over the truth run's.
+``--blurred-truth``
+    The truth run on the true radiance as is, then blurred over each vertex's one ring
+    (half and all of the ring's mean), as the photos' footprint blurs it.
 ``--light-swaps``
     ``reroom invert`` with the detected lights, then with one detected light at a time
     replaced by its true counterpart (same type, nearest position; its name kept):
@@ -764,6 +776,100 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
     for name, prob in variants:
         r = solve_lighting(prob, solve)
         print(f"| {name} | " + " | ".join(_pct(x) for x in r.albedo / truth_rho - 1) + " |")
+
+
+def truth_resolves(scan: Path, work: Path, solve: SolveOptions) -> None:
+    """The truth run's problem re-solved with the solve's options varied, and without the
+    receivers near each point or line light: which part of the solve, or which light's
+    neighbourhood, moves the albedos and the lights off the truth."""
+    from reroom.lights import load_lights
+
+    res, src, out = _truth_problem(scan, work, solve)
+    prob, sol = res.problem, res.solve
+    report = evaluate_invert(src, out)
+    rho_true = _true_cluster_albedo(prob, sol, report)
+    pts = np.asarray(read_ply(scan / "mesh.ply").vertices)[res.problem_vertices]
+    print(_row("truth run", report))
+    print(
+        "\nre-solves: albedo error against the truth; each light's power over the truth "
+        "run's\n\n| re-solve | albedo error | lights |\n|---|---|---|"
+    )
+
+    def show(name: str, again) -> None:
+        albedo = _albedo_text(prob.cluster_names, again.albedo, rho_true)
+        lights = "; ".join(
+            f"{n} x" + "/".join(f"{x:.3f}" for x in again.intensities[n].sum(0) / v.sum(0))
+            for n, v in sol.intensities.items()
+        )
+        print(f"| {name} | {albedo} | {lights} |", flush=True)
+
+    for name, change in [
+        ("least squares (no Huber)", {"huber_delta": None}),
+        ("Huber delta 0.2", {"huber_delta": 0.2}),
+        ("no eq. 5.8 reweighting", {"reweight_c": None}),
+        ("every receiver (no subset)", {"max_vertices": None}),
+    ]:
+        show(name, solve_lighting(prob, dataclasses.replace(solve, **change)))
+    for light in load_lights(src / "lights" / "lights.json").lights:
+        if light.type not in ("point", "line"):
+            continue
+        near = np.linalg.norm(pts - np.asarray(light.anchor(), float), axis=1)
+        for radius in (0.5, 1.0, 1.5):
+            keep = np.flatnonzero(near > radius)
+            show(
+                f"without the {len(pts) - len(keep)} receivers within {radius:g} m of {light.name}",
+                solve_lighting(_rows_of(prob, keep), solve),
+            )
+
+
+def blurred_truth(scan: Path, work: Path, solve: SolveOptions) -> None:
+    """The truth run with the true radiance blurred over each vertex's one ring (half and
+    all of the ring's mean), as the photos' footprint blurs what they see: which way a
+    blur of the observations moves each light."""
+    true_rad, _, _ = _truth(scan)
+    src = _true_lights_scan(scan, work)
+    f = np.asarray(read_ply(scan / "mesh.ply").faces)
+    n = len(true_rad)
+    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    ring = scipy.sparse.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    ring.data[:] = 1.0  # an edge shared by two faces counts once
+    seen = np.isfinite(true_rad).all(axis=1)
+    count = ring @ seen.astype(float)
+    mean = (ring @ np.where(seen[:, None], true_rad, 0.0)) / np.maximum(count, 1.0)[:, None]
+    mean = np.where((count > 0)[:, None], mean, true_rad)
+    print("| truth run, radiance | wall | floor | ceiling | lights |\n|---|---|---|---|---|")
+    for name, rad in [
+        ("point truth", true_rad),
+        ("half the one-ring mean", 0.5 * true_rad + 0.5 * mean),
+        ("the one-ring mean", mean),
+    ]:
+        out = work / ("blurred_" + name.replace(" ", "_"))
+        _invert(src, out, np.where(seen[:, None], rad, np.nan), solve)
+        print(_row(name, evaluate_invert(src, out)), flush=True)
+
+
+def radiance_scales(scan: Path) -> None:
+    """The HDR radiance's scale ``k`` two ways: the evaluation's ratio of sums over the
+    clustered vertices, and from the exposures alone (the geometric mean over frames of
+    the true frame scale over the solved one), which no vertex sampling touches."""
+    solved = json.loads((scan / "hdr" / "exposures.json").read_text())["frames"]
+    truth = json.loads((scan / "ground_truth" / "ground_truth.json").read_text())["frames"]
+    ratio = [
+        np.asarray(t["scale"], float) / np.asarray(s["scale"], float)
+        for s, t in zip(solved, truth, strict=True)
+        if s.get("scale") is not None
+    ]
+    k_exposures = np.exp(np.log(np.asarray(ratio)).mean(axis=0))
+    k_vertices = np.asarray(evaluate_invert(scan)["radiance_scale"], float)
+    print(
+        "\nk from the vertices (the evaluation's) "
+        + "/".join(f"{x:.4f}" for x in k_vertices)
+        + ", from the exposures "
+        + "/".join(f"{x:.4f}" for x in k_exposures)
+        + "; vertices over exposures "
+        + "/".join(f"{x:.4f}" for x in k_vertices / k_exposures)
+    )
 
 
 def _albedo_text(names, albedo, truth_rho) -> str:
@@ -2010,6 +2116,15 @@ def main() -> None:
     ap.add_argument(
         "--truth-run", action="store_true", help="invert with true radiance and true lights"
     )
+    ap.add_argument(
+        "--truth-resolves", action="store_true", help="the truth run re-solved, options varied"
+    )
+    ap.add_argument(
+        "--blurred-truth", action="store_true", help="the truth run on a one-ring-blurred truth"
+    )
+    ap.add_argument(
+        "--scales", action="store_true", help="k from the vertices and from the exposures"
+    )
     ap.add_argument("--light-swaps", action="store_true")
     ap.add_argument(
         "--window-photos", action="store_true", help="what the photos through the window show"
@@ -2080,6 +2195,12 @@ def main() -> None:
         swaps(args.scan, args.work, SolveOptions(**json.loads(args.solve)), args.rows)
     if args.truth_run:
         truth_run(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+    if args.scales:
+        radiance_scales(args.scan)
+    if args.truth_resolves:
+        truth_resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+    if args.blurred_truth:
+        blurred_truth(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.at_truth:
         at_truth(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.indirect_scale:
