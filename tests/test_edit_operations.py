@@ -387,6 +387,53 @@ def test_the_backing_shell_shows_and_sends_light_back_through_a_hole(
     assert not any(k.startswith("backing") for k in edited_scene(holed, [], max_depth=2))
 
 
+def test_a_window_s_reveals_take_the_scanned_reveals_albedo_not_the_walls(
+    scan: Path, tmp_path: Path
+) -> None:
+    # A 1 x 0.8 m window in the wall y = 0 (15 cm reveal), whose scanned reveal vertices
+    # (here: the wall vertices inside the opening's span) were measured whiter than the
+    # walls, as the true room's reveals are.
+    room = tmp_path / "windowed"
+    shutil.copytree(scan, room)
+    layout = json.loads((room / "layout" / "layout.json").read_text())
+    opening = {"kind": "window", "wall": 0, "s0": 1.5, "s1": 2.5, "z0": 1.0, "z1": 1.8}
+    layout["rooms"][0]["openings"] = [{**opening, "depth": 0.15}]
+    (room / "layout" / "layout.json").write_text(json.dumps(layout))
+    labelled = read_ply(room / "layout" / "layout_labels.ply")
+    v, f = np.asarray(labelled.vertices), np.asarray(labelled.faces)
+    lab = np.asarray(labelled.vertex_attributes["label"]).copy()
+    reveal = (lab == 0) & (v[:, 1] < 1e-6) & (np.abs(v[:, 0] - 2.0) <= 0.5)
+    reveal &= (v[:, 2] >= 1.0) & (v[:, 2] <= 1.8)
+    assert reveal.sum() >= 3
+    lab[reveal] = 4
+    write_triangle_ply(room / "layout" / "layout_labels.ply", v, f, {"label": lab})
+    alb = read_ply(room / "invert" / "albedo.ply")
+    albedo = np.asarray(alb.vertex_attributes["albedo"]).copy()
+    albedo[reveal] = [0.8, 0.8, 0.78]
+    write_triangle_ply(room / "invert" / "albedo.ply", v, f, {"albedo": albedo})
+
+    def reveal_albedo(scene: dict, key: str) -> list[float]:
+        return scene[key]["bsdf"]["bsdf"]["reflectance"]["value"]
+
+    # The empty room's reveals and the shell's behind the scan: the scanned reveals'.
+    empty = edited_scene(room, [{"op": "empty"}], max_depth=2)
+    np.testing.assert_allclose(reveal_albedo(empty, "room_window"), [0.8, 0.8, 0.78], rtol=1e-6)
+    backed = edited_scene(room, [], max_depth=2)
+    np.testing.assert_allclose(reveal_albedo(backed, "backing_window"), [0.8, 0.8, 0.78], rtol=1e-6)
+    # A repaint of the walls leaves them, as it leaves the scan's reveal vertices.
+    red = [0.8, 0.1, 0.1]
+    painted = edited_scene(room, [{"op": "repaint", "target": "wall", "color": red}], max_depth=2)
+    assert reveal_albedo(painted, "backing_wall") == red
+    np.testing.assert_allclose(
+        reveal_albedo(painted, "backing_window"), [0.8, 0.8, 0.78], rtol=1e-6
+    )
+    # A scan that saw no reveal: they take the wall's solved albedo.
+    lab[reveal] = 0
+    write_triangle_ply(room / "layout" / "layout_labels.ply", v, f, {"label": lab})
+    unseen = edited_scene(room, [{"op": "empty"}], max_depth=2)
+    np.testing.assert_allclose(reveal_albedo(unseen, "room_window"), [RHO] * 3, rtol=1e-6)
+
+
 def test_insert_casts_a_shadow(scan: Path) -> None:
     p = np.array([[1.7, 1.5, 0.0]])  # the lamp -> p segment is 0.43 m high at x = 1.55
     base = edited_scene(scan, [], max_depth=2)
