@@ -46,6 +46,7 @@ from scipy.sparse.csgraph import connected_components
 from reroom.errors import ReroomError
 from reroom.hdr import _kernels as K
 from reroom.hdr.observe import CLIPPED, Observations
+from reroom.threads import one_blas_thread
 
 __all__ = [
     "ExposureSolution",
@@ -260,16 +261,6 @@ def _free_frames(prob: SolveProblem, refs: np.ndarray, labels: np.ndarray) -> np
     return np.flatnonzero(free)
 
 
-def _one_blas_thread():
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
-
-
 def _spd_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Solve the (symmetric positive semi-definite) reduced system, robustly."""
     if a.shape[0] == 0:
@@ -277,7 +268,7 @@ def _spd_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     try:
         # One BLAS thread: for F ~ 1000 a Cholesky takes ~20 ms, and OpenBLAS's
         # threads spin-waiting on a busy 2-core machine made it 40x slower.
-        with _one_blas_thread():
+        with one_blas_thread():
             factor = scipy.linalg.cho_factor(a, check_finite=False)
             return scipy.linalg.cho_solve(factor, b, check_finite=False)
     except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):

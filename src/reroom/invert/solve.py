@@ -64,6 +64,7 @@ import scipy.sparse as sp
 
 from reroom.errors import ReroomError
 from reroom.layout.meshops import vertex_adjacency, vertex_areas
+from reroom.threads import one_blas_thread
 
 __all__ = [
     "LIGHT_KINDS",
@@ -1096,16 +1097,6 @@ def _solve_joint_irls(
 # --------------------------------------------------------------------------------------
 
 
-def _one_blas_thread():
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
-
-
 def _solve_rows(
     problem: InverseProblem, used: np.ndarray, options: SolveOptions
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1238,7 +1229,7 @@ def solve_lighting(
         profile=np.zeros(lay.n_mono),
         color=color0,
     )
-    with _one_blas_thread():  # threaded BLAS on small vectors is 10x slower under load
+    with one_blas_thread():  # threaded BLAS on small vectors is 10x slower under load
         if options.method == "alternating":
             iterations, converged, history = _solve_alternating(data, lay, st, options, progress)
         else:
