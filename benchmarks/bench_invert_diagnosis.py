@@ -34,6 +34,9 @@ reads ``ground_truth/``, which the estimate never does.
     wider Huber, no eq. 5.8 reweighting and every receiver instead of the subset, then
     without the receivers within 0.5 / 1 / 1.5 m of each point or line light: albedo
     errors, and each light's power over the truth run's.
+``--resolves``
+    The same re-solves of the scan's own run (HDR radiance, detected lights): each
+    light's power over that run's.
 ``--blurred-truth``
     The truth run on the true radiance as is, then blurred over each vertex's one ring
     (half and all of the ring's mean), as the photos' footprint blurs it.
@@ -778,21 +781,27 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
         print(f"| {name} | " + " | ".join(_pct(x) for x in r.albedo / truth_rho - 1) + " |")
 
 
-def truth_resolves(scan: Path, work: Path, solve: SolveOptions) -> None:
-    """The truth run's problem re-solved with the solve's options varied, and without the
-    receivers near each point or line light: which part of the solve, or which light's
-    neighbourhood, moves the albedos and the lights off the truth."""
+def truth_resolves(scan: Path, work: Path, solve: SolveOptions, truth: bool = True) -> None:
+    """The truth run's problem (``truth``; else the scan's own run: HDR radiance, detected
+    lights) re-solved with the solve's options varied, and without the receivers near
+    each point or line light: which part of the solve, or which light's neighbourhood,
+    moves the albedos and the lights off the truth."""
     from reroom.lights import load_lights
 
-    res, src, out = _truth_problem(scan, work, solve)
+    if truth:
+        res, src, out = _truth_problem(scan, work, solve)
+    else:
+        src, out = scan, work / "resolves"
+        res = _invert_result_cache.get(out) or _invert(src, out, None, solve)
     prob, sol = res.problem, res.solve
     report = evaluate_invert(src, out)
     rho_true = _true_cluster_albedo(prob, sol, report)
     pts = np.asarray(read_ply(scan / "mesh.ply").vertices)[res.problem_vertices]
-    print(_row("truth run", report))
+    run = "truth run" if truth else "run"
+    print(_row(run, report))
     print(
-        "\nre-solves: albedo error against the truth; each light's power over the truth "
-        "run's\n\n| re-solve | albedo error | lights |\n|---|---|---|"
+        f"\nre-solves: albedo error against the truth; each light's power over the {run}'s"
+        "\n\n| re-solve | albedo error | lights |\n|---|---|---|"
     )
 
     def show(name: str, again) -> None:
@@ -2120,6 +2129,9 @@ def main() -> None:
         "--truth-resolves", action="store_true", help="the truth run re-solved, options varied"
     )
     ap.add_argument(
+        "--resolves", action="store_true", help="--truth-resolves on the scan's own run"
+    )
+    ap.add_argument(
         "--blurred-truth", action="store_true", help="the truth run on a one-ring-blurred truth"
     )
     ap.add_argument(
@@ -2199,6 +2211,8 @@ def main() -> None:
         radiance_scales(args.scan)
     if args.truth_resolves:
         truth_resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+    if args.resolves:
+        truth_resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)), truth=False)
     if args.blurred_truth:
         blurred_truth(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.at_truth:
