@@ -781,7 +781,7 @@ def swaps(scan: Path, work: Path, solve: SolveOptions, rows: int = 4) -> None:
         print(f"| {name} | " + " | ".join(_pct(x) for x in r.albedo / truth_rho - 1) + " |")
 
 
-def truth_resolves(scan: Path, work: Path, solve: SolveOptions, truth: bool = True) -> None:
+def resolves(scan: Path, work: Path, solve: SolveOptions, truth: bool = True) -> None:
     """The truth run's problem (``truth``; else the scan's own run: HDR radiance, detected
     lights) re-solved with the solve's options varied, and without the receivers near
     each point or line light: which part of the solve, or which light's neighbourhood,
@@ -2210,9 +2210,9 @@ def main() -> None:
     if args.scales:
         radiance_scales(args.scan)
     if args.truth_resolves:
-        truth_resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
+        resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)), truth=True)
     if args.resolves:
-        truth_resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)), truth=False)
+        resolves(args.scan, args.work, SolveOptions(**json.loads(args.solve)), truth=False)
     if args.blurred_truth:
         blurred_truth(args.scan, args.work, SolveOptions(**json.loads(args.solve)))
     if args.at_truth:
