@@ -186,6 +186,30 @@ def model_edits(ops: list[dict], names: dict[str, str], truth_desc: dict) -> lis
     return out
 
 
+def print_shell_albedos(run: Path) -> None:
+    """The albedo the layout's shell gives the walls and the windows' reveals (the
+    reveals: the median of the scan's window-labelled vertices, docs/edit.md), and how
+    many reveal vertices the scan measured."""
+    from reroom.edit.apply import load_model
+    from reroom.errors import ReroomError
+    from reroom.layout.labels import WINDOW
+
+    try:
+        model = load_model(run)
+    except ReroomError as exc:  # the renders below report it themselves
+        print(f"shell albedos: model not loaded ({exc})")
+        return
+    seen = 0 if model.labels is None else int(((model.labels == WINDOW) & model.known).sum())
+    wall, reveal = (model.label_albedo(x) for x in ("wall", "window"))
+    print(
+        "shell albedos: wall "
+        + "/".join(f"{x:.3f}" for x in wall)
+        + ", window reveals "
+        + "/".join(f"{x:.3f}" for x in reveal)
+        + f" ({seen} scanned reveal vertices)"
+    )
+
+
 def new_cameras(layout: dict, intr: Any) -> list[tuple[str, np.ndarray, Any]]:
     """Two cameras off the scanning walk: a low corner view and a high one looking down."""
     from reroom.scan import look_at
@@ -529,6 +553,7 @@ def main() -> None:
     ref = int(exposures.get("reference_frame", 0))
     names = map_light_names(truth_desc, model_doc)
     print("light names (truth -> model):", names)
+    print_shell_albedos(scan_dir)
 
     scan = load_scan(scan_dir, check_images=False)
     frames = [int(x) for x in args.frames.split(",") if x.strip()]
