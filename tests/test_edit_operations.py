@@ -420,6 +420,14 @@ def test_a_window_s_reveals_take_the_scanned_reveals_albedo_not_the_walls(
     np.testing.assert_allclose(reveal_albedo(empty, "room_window"), [0.8, 0.8, 0.78], rtol=1e-6)
     backed = edited_scene(room, [], max_depth=2)
     np.testing.assert_allclose(reveal_albedo(backed, "backing_window"), [0.8, 0.8, 0.78], rtol=1e-6)
+    # The scan's own reveal faces give way to the shell's; the rest of the scan stays.
+    kept = np.asarray(read_ply(backed["room"]["filename"]).faces)
+    on_reveal = reveal[f].all(axis=1)
+    assert on_reveal.any() and not reveal[kept].all(axis=1).any()
+    assert len(kept) == len(f) - on_reveal.sum()
+    # Without the shell behind it the scan keeps them (no hole where nothing fills it).
+    bare = edited_scene(room, [], max_depth=2, backing=False)
+    assert len(read_ply(bare["room"]["filename"]).faces) == len(f)
     # A repaint of the walls leaves them, as it leaves the scan's reveal vertices.
     red = [0.8, 0.1, 0.1]
     painted = edited_scene(room, [{"op": "repaint", "target": "wall", "color": red}], max_depth=2)

@@ -320,13 +320,32 @@ def test_the_tube_runs_as_far_as_its_stripe_in_the_photos(photos) -> None:
     assert abs(half.p0[0] - P0[0]) < 0.03 and abs(half.p1[0] - P1[0]) < 0.03
     assert half.moved_m[0] == pytest.approx(0.6, abs=0.03)
     np.testing.assert_allclose(half.p0[1:], P0[1:], atol=1e-9)  # along the axis given
-    # A span that is right stays: the stripe overshoots its ends by a pixel at most.
+    # A span that is right stays: the stripe overshoots its ends by a pixel at most,
+    # and by as much at both.
     whole = _extent(photos, P0, P1)
     assert whole.moved_m == (0.0, 0.0) and whole.bright.any()
+    assert abs(whole.shift_m) < 0.003
+    np.testing.assert_allclose([whole.p0, whole.p1], [P0, P1], atol=0.003)
     # Photos that cannot be read say nothing: the ends stay.
     frames, images = photos
     blind = _extent(photos, P0 + 0.5 * (P1 - P0), P1, load=lambda f: None)
     assert blind.moved_m == (0.0, 0.0) and not blind.seen.any()
+
+
+@pytest.mark.parametrize("offset", [-0.03, 0.045])
+def test_a_span_off_along_its_axis_is_centred_on_the_stripe(photos, offset) -> None:
+    # A fused scan's bright span sits on its voxel grid: the right length, centimetres
+    # off along the axis. Its length is kept and its centre moves to the stripe's.
+    along = np.array([offset, 0.0, 0.0])
+    moved = _extent(photos, P0 + along, P1 + along)
+    assert moved.moved_m == (0.0, 0.0)
+    assert moved.shift_m == pytest.approx(-offset, abs=0.003)
+    np.testing.assert_allclose([moved.p0, moved.p1], [P0, P1], atol=0.003)
+    assert moved.summary()["centre_shift_m"] == pytest.approx(-offset, abs=0.003)
+    # Further off than min_move: the end grows to the stripe (as before), no re-centring.
+    far = np.array([0.12, 0.0, 0.0])
+    stays = _extent(photos, P0 + far, P1 + far)
+    assert stays.shift_m == 0.0
 
 
 def test_the_pipeline_extends_a_tube_the_scan_held_in_part(photos, tmp_path) -> None:

@@ -12,6 +12,7 @@ from reroom.layout.emptyroom import (
     backing_shell,
     depth_behind_planes,
     empty_room_mesh,
+    reveal_points,
     room_shell,
 )
 from reroom.layout.evaluate import evaluate_layout, floorplan_iou
@@ -409,6 +410,37 @@ def test_depth_behind_planes_counts_each_surface_out_of_its_own_plane():
     assert depth_behind_planes(room, pts[n:], lab[n:]) == pytest.approx(0.01, abs=1e-9)
     assert depth_behind_planes(room, pts[n : 2 * n], lab[n : 2 * n]) == 0.0
     assert depth_behind_planes(room, pts[:0], lab[:0]) == 0.0
+
+
+def test_reveal_points_are_the_window_points_on_its_reveal_surfaces():
+    # A window in wall 0 (y = 0, the room at y > 0): s 1-2 m, z 1-1.8 m, 0.2 m deep.
+    room = {
+        "polygon": [[0, 0], [4, 0], [4, 3], [0, 3]],
+        "openings": [
+            {"kind": "window", "wall": 0, "s0": 1.0, "s1": 2.0, "z0": 1.0, "z1": 1.8, "depth": 0.2},
+            {"kind": "door", "wall": 0, "s0": 3.0, "s1": 3.8, "z0": 0.0, "z1": 2.0, "depth": 0.2},
+        ],
+    }
+    pts = np.array(
+        [
+            [1.0, -0.1, 1.4],  # on the left jamb
+            [2.01, -0.05, 1.4],  # the right jamb, 1 cm off its plane
+            [1.5, -0.1, 1.0],  # the sill
+            [1.5, -0.1, 1.8],  # the head
+            [0.98, 0.0, 1.4],  # the wall's plane beside the jamb (a fused scan's bevel)
+            [0.985, -0.015, 1.4],  # the bevel itself
+            [1.5, -0.1, 1.3],  # a pot on the sill, 30 cm up: not the reveal
+            [1.5, -0.2, 1.4],  # the pane at the far end
+            [0.9, 0.0, 1.4],  # the wall 10 cm beside the opening
+            [3.4, -0.1, 1.0],  # the door's reveal: no window
+        ]
+    )
+    lab = np.full(len(pts), WINDOW)
+    got = reveal_points(room, pts, lab)
+    assert got.tolist() == [True] * 6 + [False] * 4
+    # Only window-labelled points: the same jamb point as a wall point is not marked.
+    assert not reveal_points(room, pts[:1], np.array([WALL]))[0]
+    assert not reveal_points({"polygon": [], "openings": []}, pts, lab).any()
 
 
 # ----------------------------------------------------------------------------- evaluation

@@ -1007,14 +1007,17 @@ def _emitting_faces(model: RoomModel) -> np.ndarray:
     return emitting
 
 
-def _remove_from_room(scene: dict[str, Any], faces: np.ndarray, work: Path) -> None:
-    """Rewrite the scan-mesh shape ``room`` without the given faces (vertex triples)."""
+def _remove_from_room(
+    scene: dict[str, Any], faces: np.ndarray, work: Path, name: str = "room_moved.ply"
+) -> None:
+    """Rewrite the scan-mesh shape ``room`` without the given faces (vertex triples), as
+    ``work/name``."""
     room = read_ply(scene["room"]["filename"])
     rf = np.ascontiguousarray(np.asarray(room.faces, np.int64))
     drop = np.ascontiguousarray(np.asarray(faces, np.int64))
     row = np.dtype((np.void, rf.dtype.itemsize * 3))
     keep = ~np.isin(rf.view(row).ravel(), drop.view(row).ravel())
-    path = work / "room_moved.ply"
+    path = work / name
     write_triangle_ply(
         path,
         np.asarray(room.vertices),
@@ -1158,7 +1161,7 @@ def _back_the_scan(
     the cameras, not measured surfaces; its holes keep the constant surroundings the
     solve fitted (:func:`reroom.edit.model.surroundings_emitter`).
     """
-    from reroom.layout.emptyroom import backing_shell, depth_behind_planes
+    from reroom.layout.emptyroom import backing_shell, depth_behind_planes, reveal_points
 
     assert model.layout is not None
     rooms = [r for r in model.layout.get("rooms", []) if r.get("ceiling", "seen") == "seen"]
@@ -1181,11 +1184,10 @@ def _back_the_scan(
     for k, room in enumerate(rooms):
         try:
             gap = max(BACKING_GAP, depth_behind_planes(room, aligned, labels) + 0.01)
-            parts.append(
-                backing_shell(
-                    {**model.layout, "rooms": [room]}, gap, BACKING_MARGIN, portals=portals
-                )
+            mesh, face_label = backing_shell(
+                {**model.layout, "rooms": [room]}, gap, BACKING_MARGIN, portals=portals
             )
+            parts.append((mesh, face_label, room))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             # A hand-edited layout.json: the scan still renders, without this room's shell.
             warnings.warn(
@@ -1194,11 +1196,22 @@ def _back_the_scan(
                 "behind the scan",
                 stacklevel=3,
             )
-    parts = [(m, lab) for m, lab in parts if len(m.faces)]
+    parts = [(m, lab, room) for m, lab, room in parts if len(m.faces)]
     if not parts:
         return
-    shell = trimesh.util.concatenate([m for m, _ in parts])
-    face_label = np.concatenate([lab for _, lab in parts]).astype(np.int64)
+    # The scan's window reveals give way to the shell's (its planes, the reveals'
+    # albedo): a fused scan rounds a reveal over a voxel or two, and where the walk never
+    # saw a jamb it holds only that bevel, dark in the window's light. On the issue's
+    # `furnished` scan a new camera looking past the unseen jamb renders 43 -> 37 %
+    # from the truth with the panel off (docs/benchmarks.md, session 48).
+    on_reveal = np.zeros(len(model.vertices), bool)
+    for _, _, room in parts:
+        on_reveal |= reveal_points(room, aligned, labels)
+    reveal_faces = on_reveal[model.faces].all(axis=1)
+    if reveal_faces.any():
+        _remove_from_room(scene, model.faces[reveal_faces], work, "room_no_reveals.ply")
+    shell = trimesh.util.concatenate([m for m, _, _ in parts])
+    face_label = np.concatenate([lab for _, lab, _ in parts]).astype(np.int64)
     # Seen only through holes (where no photo looked), the shell's planes show their mean
     # albedo, not their photo texture: the same light, without loading a texture image
     # per plane into every render (on the 640x360 scan 29 MB of them, 3 s of its edits).

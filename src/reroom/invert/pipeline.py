@@ -843,7 +843,7 @@ def _photo_trough(
             caster or RayCaster(mesh.vertices, mesh.faces), tube.p0, tube.p1, up, reach=reach,
         )  # fmt: skip
         tube = replace(tube, p0=along.p0, p1=along.p1)
-        if any(along.moved_m):  # an end moves by tube_extent's min_move or not at all
+        if any(along.moved_m):  # an end grew by min_move or more (a re-centring moves none)
             # The axis again over the whole tube: a tilt fitted on a part of it would be
             # carried out to the new ends.
             again_others = caster_without_fixture(mesh.vertices, mesh.faces, tube.p0, tube.p1)

@@ -547,3 +547,63 @@ def depth_behind_planes(
     if len(d) == 0:
         return 0.0
     return float(max(np.quantile(d, quantile), 0.0))
+
+
+def reveal_points(
+    room: dict, points: np.ndarray, labels: np.ndarray, near: float = 0.04
+) -> np.ndarray:
+    """Which of a scan's window-labelled points lie on one room's window reveals.
+
+    A fused scan rounds a reveal's edges over a voxel or two (on the issue's
+    3 cm-voxel ``furnished`` scan the jamb the walk never saw is a bevel facing halfway
+    between the wall and the jamb, its per-vertex albedo up to 2.7), and the layout's
+    shell has the reveal's planes. The points this marks are those a renderer can
+    leave to the shell.
+
+    Parameters
+    ----------
+    room:
+        A room of ``layout.json`` (aligned frame).
+    points:
+        ``(N, 3)`` scan vertices in the aligned frame.
+    labels:
+        ``(N,)`` their layout labels (only ``WINDOW`` points can be marked).
+    near:
+        How close (metres) to a reveal's surface a point must lie: a jamb, the sill or
+        the head (within the opening's depth), or the wall's plane beside the opening.
+
+    Returns
+    -------
+    np.ndarray
+        ``(N,)`` bool. Points of the opening further than ``near`` from all of those (an
+        object standing on the sill, a pane or frame at the far end) are not marked.
+    """
+    pts = np.asarray(points, float)
+    out = np.zeros(len(pts), bool)
+    win = np.asarray(labels) == WINDOW
+    if not win.any():
+        return out
+    poly = np.asarray(room.get("polygon", np.zeros((0, 2))), float).reshape(-1, 2)
+    for o in room.get("openings", []):
+        k = int(o.get("wall", -1))
+        if o.get("kind") != "window" or not 0 <= k < len(poly):
+            continue
+        # Wall k runs from corner k to corner k + 1 of the counter-clockwise outline (as
+        # the shell is built), the room on its left.
+        a, b = poly[k], poly[(k + 1) % len(poly)]
+        t = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
+        rel = pts[:, :2] - a
+        s = rel @ t
+        d = rel @ np.array([t[1], -t[0]])  # behind the wall's plane
+        z = pts[:, 2]
+        s0, s1, z0, z1 = (float(o[k]) for k in ("s0", "s1", "z0", "z1"))
+        depth = max(float(o.get("depth", 0.0)), 0.0)
+        box = (
+            (s > s0 - near) & (s < s1 + near) & (z > z0 - near) & (z < z1 + near)
+            & (d > -near) & (d < depth + near)
+        )  # fmt: skip
+        to_reveal = np.minimum.reduce(
+            [np.abs(s - s0), np.abs(s - s1), np.abs(z - z0), np.abs(z - z1), np.abs(d)]
+        )
+        out |= win & box & (to_reveal < near)
+    return out
