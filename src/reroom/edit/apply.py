@@ -1202,7 +1202,7 @@ def _back_the_scan(
     # The scan's window reveals give way to the shell's (its planes, the reveals'
     # albedo): a fused scan rounds a reveal over a voxel or two, and where the walk never
     # saw a jamb it holds only that bevel, dark in the window's light. On the issue's
-    # `furnished` scan a new camera looking past the unseen jamb renders 43 -> 37 %
+    # `furnished` scan a new camera looking past the unseen jamb renders 43 -> 38 %
     # from the truth with the panel off (docs/benchmarks.md, session 48).
     on_reveal = np.zeros(len(model.vertices), bool)
     for _, _, room in parts:

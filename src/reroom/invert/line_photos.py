@@ -428,11 +428,11 @@ def tube_extent(
 
     Where no end moves and the stripe is bounded by dark samples at both ends, the span
     keeps its length and moves along the axis to the stripe's centre (at most
-    ``min_move``): the overshoot is the same at both ends, so the centre is the photos'
-    to within a few millimetres, while a fused scan's bright span sits on its voxel grid
-    (on the issue's scan the tube's span was right in length and 2.1 cm off along it,
-    3 cm voxels; re-centred 0.6 cm). Each end's place is where half the frames that see
-    it are saturated, between samples.
+    ``min_move``): the overshoot is about the same at both ends, so the centre is the
+    photos' to under a centimetre, while a fused scan's bright span sits on its voxel
+    grid (on the issue's scan, 3 cm voxels, the tube's span was right in length and
+    2.1 cm off along it; centred, 0.8 cm). Each end of the stripe is where half the
+    frames that see it are saturated, interpolated between samples.
     """
     a0, a1 = np.asarray(p0, float).reshape(3), np.asarray(p1, float).reshape(3)
     dh, u, _ = _frame_axes(a0, a1, up)
@@ -492,10 +492,9 @@ def tube_extent(
         first, last = s[lit[0]], s[lit[-1]]
         start = first if first <= -min_move else 0.0
         end = last if last >= length + min_move else length
-        bounded = 0 < lit[0] and lit[-1] < len(s) - 1
-        if start == 0.0 and end == length and bounded:
-            bounded = bool(is_dark[lit[0] - 1] and is_dark[lit[-1] + 1])
-        if start == 0.0 and end == length and bounded:
+        grown = start != 0.0 or end != length
+        inner = 0 < lit[0] and lit[-1] < len(s) - 1
+        if not grown and inner and is_dark[lit[0] - 1] and is_dark[lit[-1] + 1]:
             frac = bright / np.maximum(seen, 1)
             centre = 0.5 * (
                 _half_crossing(s, frac, lit[0] - 1, lit[0])
