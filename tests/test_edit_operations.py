@@ -428,6 +428,14 @@ def test_a_window_s_reveals_take_the_scanned_reveals_albedo_not_the_walls(
     # Without the shell behind it the scan keeps them (no hole where nothing fills it).
     bare = edited_scene(room, [], max_depth=2, backing=False)
     assert len(read_ply(bare["room"]["filename"]).faces) == len(f)
+    # A hand-edited opening that is no rectangle: a warning, no shell, the scan whole.
+    layout["rooms"][0]["openings"] = [{**opening, "s1": "2.5 m", "depth": 0.15}]
+    (room / "layout" / "layout.json").write_text(json.dumps(layout))
+    with pytest.warns(UserWarning, match=r"layout.json: room .* does not make a shell"):
+        broken = edited_scene(room, [], max_depth=2)
+    assert len(read_ply(broken["room"]["filename"]).faces) == len(f)
+    layout["rooms"][0]["openings"] = [{**opening, "depth": 0.15}]
+    (room / "layout" / "layout.json").write_text(json.dumps(layout))
     # A repaint of the walls leaves them, as it leaves the scan's reveal vertices.
     red = [0.8, 0.1, 0.1]
     painted = edited_scene(room, [{"op": "repaint", "target": "wall", "color": red}], max_depth=2)

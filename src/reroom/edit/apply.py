@@ -1187,7 +1187,7 @@ def _back_the_scan(
             mesh, face_label = backing_shell(
                 {**model.layout, "rooms": [room]}, gap, BACKING_MARGIN, portals=portals
             )
-            parts.append((mesh, face_label, room))
+            parts.append((mesh, face_label, reveal_points(room, aligned, labels)))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             # A hand-edited layout.json: the scan still renders, without this room's shell.
             warnings.warn(
@@ -1196,7 +1196,7 @@ def _back_the_scan(
                 "behind the scan",
                 stacklevel=3,
             )
-    parts = [(m, lab, room) for m, lab, room in parts if len(m.faces)]
+    parts = [(m, lab, reveal) for m, lab, reveal in parts if len(m.faces)]
     if not parts:
         return
     # The scan's window reveals give way to the shell's (its planes, the reveals'
@@ -1204,9 +1204,7 @@ def _back_the_scan(
     # saw a jamb it holds only that bevel, dark in the window's light. On the issue's
     # `furnished` scan a new camera looking past the unseen jamb renders 43 -> 38 %
     # from the truth with the panel off (docs/benchmarks.md, session 48).
-    on_reveal = np.zeros(len(model.vertices), bool)
-    for _, _, room in parts:
-        on_reveal |= reveal_points(room, aligned, labels)
+    on_reveal = np.logical_or.reduce([reveal for _, _, reveal in parts])
     reveal_faces = on_reveal[model.faces].all(axis=1)
     if reveal_faces.any():
         _remove_from_room(scene, model.faces[reveal_faces], work, "room_no_reveals.ply")
