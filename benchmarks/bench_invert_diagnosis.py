@@ -1672,6 +1672,35 @@ def bin_shares(scan: Path, work: Path, name: str) -> None:
             + "/".join(f"{x:.3f}" for x in scale)
             + " |"
         )
+    # Where those receivers lie: a share band is a place (a pool, its edge, a corner).
+    if res.problem_vertices is None:
+        return
+    from reroom.io.mesh import read_ply
+
+    xyz = np.asarray(read_ply(scan / "mesh.ply").vertices)[res.problem_vertices]
+    info = res.light_info[k]
+    anchor = np.asarray(info.get("geometry", {}).get("position", xyz.mean(0)), float)
+    print(
+        f"\nWhere they lie (the light at {np.round(anchor, 3).tolist()}): per band the "
+        "receivers per cluster, the 10th-90th percentiles of x, y, z and the median "
+        "distance from the light (metres):\n"
+    )
+    print("| share | " + " / ".join(prob.cluster_names) + " | x | y | z | distance |")
+    print("|---|---|---|---|---|---|")
+    for lo, hi in ((0.5, 1.01), (0.3, 0.5), (0.1, 0.3), (0.03, 0.1)):
+        rows = (share >= lo) & (share < hi)
+        if not rows.any():
+            continue
+        count = np.bincount(prob.cluster[rows], minlength=len(prob.cluster_names))
+        q = np.percentile(xyz[rows], [10, 90], axis=0)
+        dist = float(np.median(np.linalg.norm(xyz[rows] - anchor, axis=1)))
+        print(
+            f"| {lo:.2f}-{min(hi, 1):.2f} | "
+            + " / ".join(str(int(c)) for c in count)
+            + " | "
+            + " | ".join(f"{q[0, a]:.2f}-{q[1, a]:.2f}" for a in range(3))
+            + f" | {dist:.2f} |"
+        )
 
 
 def fix_at_truth(
