@@ -1587,17 +1587,21 @@ def profile_bins(scan: Path, name: str) -> None:
         print(f"\n{label}, sum of solved over sum of true per phi bin: " + ", ".join(cells))
 
 
-def bin_shares(scan: Path, work: Path, name: str) -> None:
+def bin_shares(scan: Path, work: Path, name: str, true_radiance: bool = False) -> None:
     """Who lights the receivers of each of a light's bins, in the solved model.
 
-    ``reroom invert`` once (HDR radiance, the scan's lights); each clustered receiver is
+    ``reroom invert`` once (HDR radiance, or with ``true_radiance`` the truth's per-vertex
+    radiance; the scan's lights); each clustered receiver is
     given to the inclination bin of light ``name`` that sends it the most (phi bins
     summed). Per bin: the receivers (per cluster), observed over modelled radiance
     (Rec. 709 luminance, sums), and each light's and ``E_ind``'s share of the modelled
     irradiance there. A bin whose receivers get a small share from its own light is
     held by little of the data: a small error of the others moves it a lot.
     """
-    res = _invert(scan, work / "shares")
+    if true_radiance:
+        res = _invert(scan, work / "shares_true_radiance", radiance=_truth(scan)[0])
+    else:
+        res = _invert(scan, work / "shares")
     prob, sol = res.problem, res.solve
     intens = sol.intensity_vector(prob.lights)
     offsets = np.concatenate([[0], np.cumsum([b.size for b in prob.lights])])
@@ -2205,6 +2209,9 @@ def main() -> None:
     ap.add_argument("--profile", default="", help="a light's solved profile against the truth")
     ap.add_argument("--shares", default="", help="who lights the receivers of a light's bins")
     ap.add_argument(
+        "--shares-true-radiance", action="store_true", help="--shares on the truth's radiance"
+    )
+    ap.add_argument(
         "--per-light", default="", help="the truth run light by light at a light's receivers"
     )
     ap.add_argument("--drop-cluster", default="", help="re-solve without a cluster's receivers")
@@ -2275,7 +2282,7 @@ def main() -> None:
     if args.profile:
         profile_bins(args.scan, args.profile)
     if args.shares:
-        bin_shares(args.scan, args.work, args.shares)
+        bin_shares(args.scan, args.work, args.shares, args.shares_true_radiance)
     if args.per_light:
         per_light(args.scan, args.work, args.per_light)
     if args.drop_cluster:
