@@ -111,7 +111,10 @@ reads ``ground_truth/``, which the estimate never does.
     ``E_ind``'s) share of their modelled irradiance. Then the receivers by ``NAME``'s
     share of their light: observed over modelled per channel, and the colour of ``NAME``
     that would close that gap with the rest of the model fixed (does the light's colour
-    follow the receivers it lights most?).
+    follow the receivers it lights most?), and where each share band's receivers lie
+    (clusters, x/y/z percentiles, distance from the light). With
+    ``--shares-true-radiance`` the invert reads the truth's per-vertex radiance instead
+    of the HDR mesh (the scan's lights): is a gap the HDR's or the model's?
 ``--drop-cluster NAME``
     ``reroom invert`` once, then its problem re-solved without cluster ``NAME``'s
     receivers, and with their radiance recoloured to the truth's chroma of that cluster:
