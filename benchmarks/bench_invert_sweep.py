@@ -9,6 +9,10 @@ distribution error) under a header with the setting and the invert's wall time::
     python benchmarks/bench_invert_sweep.py RUN line_shape_prior=1e4 line_shape_prior=1e5 \\
         "line_shape_prior=1e5,line_phi_smooth=1e4" [--work /tmp/reroom_sweep]
 
+It also prints the objective of eq. 5.7. ``place.NAME=X:Y:Z`` in a setting puts point light
+``NAME`` there (in a copy of the run's lights), e.g. the downlight at its true place with
+the refinement off: ``"place.localized0=5.3:3.9:2.67,refine_points=false"``.
+
 ``RUN`` must hold a ground truth (a synthetic scan run with ``bench_run.py --scan``).
 Everything here is evaluation; the estimate never reads ``ground_truth/``.
 
@@ -24,6 +28,7 @@ scale: only the pattern is used), to ``PATH``, an input that a sweep entry then 
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import shutil
 import subprocess
@@ -61,6 +66,24 @@ def sweep_dir(run: Path, work: Path, setting: str) -> Path:
     return d
 
 
+def place_lights(d: Path, places: list[str]) -> None:
+    """Put point lights where ``place.NAME=X:Y:Z`` says, in a copy of ``d``'s lights (an
+    evaluation: what the solve makes of a light at a chosen place; pair it with
+    ``refine_points=false`` to keep it there)."""
+    link = d / "lights"
+    src = link.resolve()
+    link.unlink()
+    shutil.copytree(src, link)
+    doc = json.loads((link / "lights.json").read_text())
+    by_name = {light["name"]: light for light in doc["lights"]}
+    for p in places:
+        name, _, xyz = p[len("place.") :].partition("=")
+        if name not in by_name or "position" not in by_name[name]:
+            raise SystemExit(f"{p}: no point light {name!r} in {src / 'lights.json'}")
+        by_name[name]["position"] = [float(v) for v in xyz.split(":")]
+    (link / "lights.json").write_text(json.dumps(doc))
+
+
 def capture_window_view(run: Path, path: Path, scale: float) -> float:
     """Write the run's first true window HDRI, times ``scale``, to ``path``; its rotation."""
     import json
@@ -95,9 +118,13 @@ def main() -> None:
     for setting in args.settings:
         pairs = [] if setting == "-" else [p for p in setting.split(",") if p]
         d = sweep_dir(args.run, args.work, setting)
+        places = [p for p in pairs if p.startswith("place.")]
+        if places:
+            place_lights(d, places)
         cmd = [str(reroom), "invert", str(d)]
         for p in pairs:
-            cmd += ["--set", p]
+            if p not in places:
+                cmd += ["--set", p]
         t = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t
@@ -105,6 +132,8 @@ def main() -> None:
         if proc.returncode != 0:
             print(proc.stderr[-2000:])
             continue
+        report = json.loads((d / "invert" / "report.json").read_text())
+        print(f"objective of eq. 5.7: {report['objective']:.1f}")
         evaluate(d, d / "invert")
 
 
