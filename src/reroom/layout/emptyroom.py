@@ -497,6 +497,19 @@ def _window_panes(rooms: list[dict], mesh: trimesh.Trimesh, labels: np.ndarray) 
     return pane
 
 
+def _wall_coordinates(
+    poly: np.ndarray, k: int, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Points' arc length along wall ``k`` of a counter-clockwise outline (from corner
+    ``k`` to corner ``k + 1``, the room on its left), their depth behind its plane
+    (positive away from the room), and the wall's length."""
+    a, b = poly[k], poly[(k + 1) % len(poly)]
+    length = float(np.linalg.norm(b - a))
+    t = (b - a) / max(length, 1e-12)
+    rel = np.asarray(points, float)[:, :2] - a
+    return rel @ t, rel @ np.array([t[1], -t[0]]), length
+
+
 def depth_behind_planes(
     room: dict, points: np.ndarray, labels: np.ndarray, quantile: float = 0.999
 ) -> float:
@@ -531,12 +544,7 @@ def depth_behind_planes(
     outs = []
     walls = pts[lab == WALL]
     for i in range(k):
-        a, b = poly[i], poly[(i + 1) % k]
-        length = float(np.linalg.norm(b - a))
-        t = (b - a) / max(length, 1e-12)
-        rel = walls[:, :2] - a
-        along = rel @ t
-        out = rel @ np.array([t[1], -t[0]])
+        along, out, length = _wall_coordinates(poly, i, walls)
         near = (along > 0.05) & (along < length - 0.05) & (out > -0.3) & (out < 0.5)
         outs.append(out[near])
     for label, sign, level in ((FLOOR, -1.0, room["floor_z"]), (CEILING, 1.0, room["ceiling_z"])):
@@ -588,13 +596,7 @@ def reveal_points(
         k = int(o.get("wall", -1))
         if o.get("kind") != "window" or not 0 <= k < len(poly):
             continue
-        # Wall k runs from corner k to corner k + 1 of the counter-clockwise outline (as
-        # the shell is built), the room on its left.
-        a, b = poly[k], poly[(k + 1) % len(poly)]
-        t = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
-        rel = pts[:, :2] - a
-        s = rel @ t
-        d = rel @ np.array([t[1], -t[0]])  # behind the wall's plane
+        s, d, _ = _wall_coordinates(poly, k, pts)
         z = pts[:, 2]
         s0, s1, z0, z1 = (float(o[k]) for k in ("s0", "s1", "z0", "z1"))
         depth = max(float(o.get("depth", 0.0)), 0.0)
