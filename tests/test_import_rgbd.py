@@ -629,3 +629,43 @@ def test_canonical_order_depends_only_on_the_geometry() -> None:
     new_as_old = order[f0]
     assert {tuple(np.roll(f, -int(np.argmin(f)))) for f in new_as_old} == old
     assert np.all(np.diff(verts[order][:, 0]) >= 0)
+
+
+def test_fusion_puts_surfaces_where_the_depth_says() -> None:
+    """A box room fused from exact depth maps: its floor, ceiling and walls on the box's planes.
+
+    Cameras look around level with some pitch, so a half-pixel error in the
+    projection moves the floor and ceiling up or down (8 mm at this size) while
+    the walls, seen edge-on to the error, stay put.
+    """
+    import trimesh
+
+    from reroom.importers.fusion import TsdfFusion
+    from reroom.rays import RayCaster
+    from reroom.scan.camera import look_at
+    from reroom.synth.scanner import render_depth
+
+    box = trimesh.creation.box(extents=[6.0, 5.0, 2.7])
+    box.apply_translation([3.0, 2.5, 1.35])
+    box.invert()
+    caster = RayCaster(np.asarray(box.vertices), np.asarray(box.faces))
+    w, h = 160, 120
+    f = w / 2 / math.tan(math.radians(35.0))
+    intr = Intrinsics(width=w, height=h, fx=f, fy=f, cx=w / 2, cy=h / 2)
+    rng = np.random.default_rng(0)
+    fusion = TsdfFusion(intr, 0.03, 0.12, 8.0)
+    gl_to_cv = np.diag([1.0, -1.0, -1.0, 1.0])
+    for j in range(24):
+        a = 2 * math.pi * j / 24
+        eye = np.array([3 + 0.5 * math.cos(a), 2.5 + 0.5 * math.sin(a), 1.5])
+        ahead = np.array([math.cos(a + 1.0), math.sin(a + 1.0), rng.uniform(-0.6, 0.6)])
+        frame = Frame(j, Path(), look_at(eye, eye + ahead), intr)
+        depth_mm = np.round(render_depth(caster, frame) * 1000.0).astype(np.uint16)
+        fusion.integrate(np.zeros((h, w, 3), np.uint8), depth_mm, frame.c2w @ gl_to_cv)
+    v = np.asarray(fusion.extract_mesh().vertices)
+    inner = (v[:, 0] > 0.5) & (v[:, 0] < 5.5) & (v[:, 1] > 0.5) & (v[:, 1] < 4.5)
+    mid = (v[:, 2] > 0.5) & (v[:, 2] < 2.2)
+    assert abs(np.median(v[inner & (v[:, 2] < 0.2), 2]) - 0.0) < 0.002
+    assert abs(np.median(v[inner & (v[:, 2] > 2.5), 2]) - 2.7) < 0.002
+    assert abs(np.median(v[mid & (v[:, 0] < 0.2), 0]) - 0.0) < 0.002
+    assert abs(np.median(v[mid & (v[:, 1] > 4.8), 1]) - 5.0) < 0.002
