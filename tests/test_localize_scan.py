@@ -29,6 +29,7 @@ from reroom.localize.scan import (
     _fitting_axis,
     _floating,
     _mount_test,
+    _one_fixture,
     _Problem,
     _unheld,
     localize_into_lights,
@@ -521,6 +522,21 @@ def test_floating_lights_dropped_by_default(room_scan: Path, localized):
     kept, _ = localized
     assert len(info["floating"]) >= len(kept.positions)
     assert all(f["reason"].startswith("floating:") for f in info["floating"])
+
+
+def test_lights_placed_at_one_fixture_are_one_light():
+    # Two lights the goniometric test put 10 cm apart at a lamp (the discovery's
+    # isotropic lights above and below its shade) and one far away: the weaker of the
+    # two goes, by the profile's mean intensity where there is one.
+    placed = np.array([[0.5, 0.5, 1.40], [0.5, 0.5, 1.50], [5.3, 3.9, 2.64]])
+    profiles = [{"mean_intensity": 0.4}, {"mean_intensity": 0.6}, None]
+    inten = np.array([9.0, 0.1, 1.4])
+    assert _one_fixture(placed, profiles, inten, 0.25) == [(0, 1)]
+    assert _one_fixture(placed, profiles, inten, 0.05) == []
+    # A chain of three, each 0.2 m from the next: the strongest (the middle) keeps both.
+    chain = np.array([[0.0, 0.0, 1.0], [0.2, 0.0, 1.0], [0.4, 0.0, 1.0]])
+    got = _one_fixture(chain, [None, None, None], np.array([1.0, 3.0, 2.0]), 0.25)
+    assert got == [(2, 1), (0, 1)]
 
 
 def test_shared_nnls_matches_plain_nnls():

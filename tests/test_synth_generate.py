@@ -166,3 +166,39 @@ def test_bad_options_are_reported(tmp_path: Path) -> None:
     (tmp_path / "c" / "x.txt").write_text("keep me")
     with pytest.raises(ValueError, match="not empty"):
         generate_scan("box", tmp_path / "c", SynthOptions(frames=1, width=16, height=16, spp=1))
+
+
+def test_refuse_scan_fuses_the_same_depth_on_another_grid(box_fused: Path, tmp_path: Path) -> None:
+    from reroom.synth.generate import refuse_scan
+
+    doc = json.loads((box_fused / "ground_truth" / "ground_truth.json").read_text())
+    assert doc["options"]["grid_yaw_deg"] == 17.0
+    same = refuse_scan(box_fused, tmp_path / "same", 17.0)
+    other = refuse_scan(box_fused, tmp_path / "other", 40.0)
+    base = load_scan(box_fused).mesh
+    # At the scan's own placement the fusion is the scan's (up to Open3D's
+    # thread-dependent diagonals); turned, the mesh is another, of the same room.
+    again = load_scan(same).mesh
+    assert len(again.vertices) == len(base.vertices)
+    np.testing.assert_allclose(again.bounds, base.bounds, atol=1e-6)
+    turned = load_scan(other)
+    assert len(turned.mesh.vertices) != len(base.vertices)
+    np.testing.assert_allclose(turned.mesh.bounds, base.bounds, atol=0.06)
+    truth = json.loads((other / "ground_truth" / "ground_truth.json").read_text())
+    assert truth["options"]["grid_yaw_deg"] == 40.0
+    gt = read_ply(other / "ground_truth" / "vertices.ply")
+    assert len(gt.vertices) == truth["mesh"]["vertices"] == len(turned.mesh.vertices)
+    assert np.all(np.isfinite(gt.vertex_attributes["radiance"]))
+    # The photos are the scan's.
+    assert (other / "images").is_dir() and len(turned.frames) == len(load_scan(box_fused).frames)
+    with pytest.raises(ValueError, match="exists"):
+        refuse_scan(box_fused, tmp_path / "other", 40.0)
+
+
+def test_refuse_scan_needs_a_fused_synthetic_scan(furnished: Path, tmp_path: Path) -> None:
+    from reroom.synth.generate import refuse_scan
+
+    with pytest.raises(ValueError, match="not fused"):
+        refuse_scan(furnished, tmp_path / "x", 30.0)
+    with pytest.raises(ValueError, match="not a synthetic scan"):
+        refuse_scan(tmp_path, tmp_path / "y", 30.0)

@@ -108,6 +108,9 @@ def synth(
     mesh: Annotated[
         str, typer.Option(help="clean | corrupted | fused (TSDF from rendered depth).")
     ] = "clean",
+    grid_yaw: Annotated[
+        float, typer.Option(help="fused: the voxel grid's turn about the vertical, degrees.")
+    ] = 17.0,
     noise: Annotated[bool, typer.Option(help="Shot and read noise in the frames.")] = True,
     response: Annotated[
         str, typer.Option(help="Camera response: gamma2.2 | srgb | linear.")
@@ -136,6 +139,7 @@ def synth(
             mesh=mesh,
             camera=CameraModel(response=response, noise=noise),
             save_hdr=save_hdr,
+            grid_yaw_deg=grid_yaw,
         )
         t = time.perf_counter()
         with _progress() as cb:

@@ -191,6 +191,14 @@ class ScanLocalizeOptions:
         hold it (no vertex other than floor and ceiling near it, ``vertex_labels`` needed)
         and the data allow the mounted position (``mount_tolerance``): a light cannot
         float, so it is in the surface above (docs/localize.md).
+    one_fixture_m:
+        After the goniometric test, two lights it places closer than this (metres) are
+        one fixture: the weaker (by its mean intensity) is dropped and the other refit
+        and placed again, its profile now free to send the light of both. Isotropic
+        lights above and below an open-topped shade (one for its ceiling pool, one for
+        its floor pool) can both pass the pruning and both end at the bulb (issue's
+        scan fused at another grid yaw: two lights 1.6 cm apart, the lamp split
+        −81 % / −19 %; docs/localize.md).
     drop_floating:
         After the goniometric test (and its mounting), drop a light that nothing in the
         scan can hold: farther than ``mount_depth`` below the surface above it, with no
@@ -257,6 +265,7 @@ class ScanLocalizeOptions:
     search_albedo_update: str = "bounded"
     search_albedo_bound: float = 0.05
     mount_unsupported: bool = True
+    one_fixture_m: float = 0.25
     drop_floating: bool = True
     hold_in_fitting: bool = True
     fitting_slack: float = 0.05
@@ -863,6 +872,7 @@ def _localize_scan(
     u_search = {c: u[j] for j, c in enumerate(full.classes) if c in opt.classes}
     u_found = u.copy()
     floating: list[dict] = []
+    merged: list[dict] = []
     while True:
         u = u_found.copy()
         direct = shading_matrix(full.points, full.normals, pos, full.visibility(pos, down)) @ inten
@@ -878,14 +888,24 @@ def _localize_scan(
             if pr is not None:
                 placed[k] = pr["position"]
         held = np.ones(len(pos), bool)
-        if opt.drop_floating and vert_labels is not None:
+        for k, into in _one_fixture(placed, profiles, inten, opt.one_fixture_m):
+            held[k] = False
+            merged.append(
+                {
+                    "position": placed[k].tolist(),
+                    "into": placed[into].tolist(),
+                    "distance_m": float(np.linalg.norm(placed[k] - placed[into])),
+                }
+            )
+        if held.all() and opt.drop_floating and vert_labels is not None:
             for k, why in _unheld(full.caster, verts, vert_labels, placed, profiles, opt):
                 held[k] = False
                 floating.append({"position": placed[k].tolist(), "reason": why})
         if held.all():
             break
         # A light that nothing can hold is a fit of light the other models miss (a
-        # window's grazing patch on `box`): drop it, refit the rest, place them again.
+        # window's grazing patch on `box`), and one placed at another's fixture is that
+        # fixture's: drop it, refit the rest, place them again.
         pos, inten, down = pos[held], inten[held], down[held]
         bounds = (bounds[0][held], bounds[1][held])
         if len(pos):
@@ -917,6 +937,7 @@ def _localize_scan(
         "stopped": reason,
         "leave_one_out": pruned,
         "floating": floating,
+        "one_fixture": merged,
         "downward": down.tolist(),
         "goniometric": [
             None if pr is None else {k: v for k, v in pr.items() if k != "profile"}
@@ -928,6 +949,29 @@ def _localize_scan(
         "options": asdict(opt),
     }
     return res, info
+
+
+def _one_fixture(placed: np.ndarray, profiles, inten: np.ndarray, within: float):
+    """Pairs ``(k, into)``: light ``k`` placed within ``within`` metres of a stronger ``into``.
+
+    Strength is the goniometric profile's mean intensity where the test gave one, else
+    the isotropic intensity. Strongest first, so a chain of three keeps one.
+    """
+    strength = np.array(
+        [
+            float(pr["mean_intensity"]) if pr is not None else float(i)
+            for pr, i in zip(profiles, inten, strict=True)
+        ]
+    )
+    kept: list[int] = []
+    out = []
+    for k in np.argsort(-strength, kind="stable"):
+        near = [j for j in kept if np.linalg.norm(placed[k] - placed[j]) < within]
+        if near:
+            out.append((int(k), near[0]))
+        else:
+            kept.append(int(k))
+    return out
 
 
 def _cost(prob: _Problem, pos, inten, u, x, soft: float, down=None) -> float:

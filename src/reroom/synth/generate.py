@@ -8,6 +8,7 @@ albedo, path-traced radiance) -> ``transforms.json`` + ``ground_truth/``.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -26,6 +27,7 @@ from reroom.synth.camera_sim import AutoCamera, CameraModel
 from reroom.synth.groundtruth import clean_surface, transfer_truth
 from reroom.synth.labels import LABELS
 from reroom.synth.presets import PRESETS, build_preset
+from reroom.synth.scanner import GRID_YAW_DEG
 from reroom.synth.scene import mitsuba_scene_dict, write_scene
 from reroom.synth.trajectory import walk_and_look
 
@@ -57,6 +59,8 @@ class SynthOptions:
     camera: CameraModel = field(default_factory=CameraModel)
     save_hdr: bool = False
     voxel_size: float = 0.03
+    # The fused mesh's voxel grid, turned this far about the vertical (synth.scanner).
+    grid_yaw_deg: float = GRID_YAW_DEG
 
     def to_json(self) -> dict[str, Any]:
         d = {k: v for k, v in self.__dict__.items() if k != "camera"}
@@ -182,33 +186,15 @@ def generate_scan(
             "albedo": clean.albedo,
             "distance": np.zeros(len(clean.vertices)),
         }
-        probe_offset = 0.004
     else:
         if opt.mesh == "corrupted":
             from reroom.synth.scanner import corrupt_mesh
 
             mesh = corrupt_mesh(clean.vertices, clean.faces, rng)
         else:
-            from reroom.rays import RayCaster
-            from reroom.synth.scanner import fuse_depth_maps, kinect_noise, render_depth
-
-            caster = RayCaster(clean.vertices, clean.faces)
-            frames = [Frame(j, Path(), c2w, intr) for j, c2w in enumerate(poses)]
-            depth_rng = np.random.default_rng(opt.seed + 2)
-            depths = []
-            for j, fr in enumerate(frames):
-                depths.append(kinect_noise(render_depth(caster, fr), depth_rng))
-                progress("depth maps", j + 1, len(frames))
-            mesh = fuse_depth_maps(
-                depths,
-                frames,
-                intr,
-                voxel_size=opt.voxel_size,
-                progress=lambda d, n: progress("tsdf fusion", d, n),
-            )
+            mesh = _fused_mesh(clean, poses, intr, opt, progress)
         normals = np.asarray(mesh.vertex_normals)
         truth = transfer_truth(clean, desc, scene_dir, np.asarray(mesh.vertices), normals)
-        probe_offset = 0.03
     timings["mesh"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -220,26 +206,14 @@ def generate_scan(
         normals,
         opt.vertex_spp,
         seed=opt.seed,
-        offset=probe_offset if opt.mesh == "clean" else 0.004,
+        offset=0.004,
         progress=lambda d, n: progress("vertex radiance", d, n),
     )
     timings["vertex_radiance"] = time.perf_counter() - t
 
     # --- write --------------------------------------------------------------------------------
     t = time.perf_counter()
-    gt_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-    write_ply(
-        gt_dir / "vertices.ply",
-        gt_mesh,
-        {
-            "label": truth["label"].astype(np.uint8),
-            "part": truth["part"].astype(np.int32),
-            "albedo": truth["albedo"],
-            "radiance": radiance,
-            "radiance_stderr": stderr,
-            "surface_distance": truth["distance"],
-        },
-    )
+    _write_vertex_truth(gt_dir / "vertices.ply", mesh, truth, radiance, stderr)
     scan_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     meta = {
         "reroom": {
@@ -275,4 +249,118 @@ def generate_scan(
     truth_doc["timings_s"]["write"] = round(timings["write"], 3)
     truth_doc["timings_s"]["total"] = round(time.perf_counter() - t0, 3)
     atomic_write_json(gt_dir / "ground_truth.json", truth_doc)
+    return out
+
+
+def _fused_mesh(
+    clean: Any,
+    poses: Sequence[np.ndarray],
+    intr: Intrinsics,
+    opt: SynthOptions,
+    progress: ProgressFn,
+) -> trimesh.Trimesh:
+    """The scanner-like mesh: Kinect-noisy depth maps of the clean surface, TSDF-fused."""
+    from reroom.rays import RayCaster
+    from reroom.synth.scanner import fuse_depth_maps, kinect_noise, render_depth
+
+    caster = RayCaster(clean.vertices, clean.faces)
+    frames = [Frame(j, Path(), c2w, intr) for j, c2w in enumerate(poses)]
+    depth_rng = np.random.default_rng(opt.seed + 2)
+    depths = []
+    for j, fr in enumerate(frames):
+        depths.append(kinect_noise(render_depth(caster, fr), depth_rng))
+        progress("depth maps", j + 1, len(frames))
+    return fuse_depth_maps(
+        depths,
+        frames,
+        intr,
+        voxel_size=opt.voxel_size,
+        progress=lambda d, n: progress("tsdf fusion", d, n),
+        grid_yaw_deg=opt.grid_yaw_deg,
+    )
+
+
+def _write_vertex_truth(
+    path: Path, mesh: trimesh.Trimesh, truth: dict, radiance: np.ndarray, stderr: np.ndarray
+) -> None:
+    write_ply(
+        path,
+        trimesh.Trimesh(mesh.vertices, mesh.faces, process=False),
+        {
+            "label": truth["label"].astype(np.uint8),
+            "part": truth["part"].astype(np.int32),
+            "albedo": truth["albedo"],
+            "radiance": radiance,
+            "radiance_stderr": stderr,
+            "surface_distance": truth["distance"],
+        },
+    )
+
+
+def refuse_scan(
+    scan_dir: str | Path,
+    out_dir: str | Path,
+    grid_yaw_deg: float,
+    progress: ProgressFn | None = None,
+) -> Path:
+    """A fused synthetic scan again, its voxel grid turned ``grid_yaw_deg``; photos kept.
+
+    Copies ``scan_dir`` (made by :func:`generate_scan` with ``mesh="fused"``) to the new
+    folder ``out_dir`` and fuses its mesh again from the same noisy depth maps, the grid
+    placed otherwise, with the per-vertex truth made afresh; frames, exposures and the
+    scene stay. The result is what :func:`generate_scan` makes with that
+    ``grid_yaw_deg``, in minutes instead of the frames' rendering: it measures how much
+    a figure owes to where the fusion's voxels fell.
+    """
+    import shutil
+
+    from reroom.render import mitsuba
+    from reroom.scan import load_scan
+
+    progress = progress or _noop
+    src, out = Path(scan_dir), Path(out_dir)
+    gt_path = src / "ground_truth" / "ground_truth.json"
+    if not gt_path.is_file():
+        raise ValueError(f"{src}: no ground_truth/ground_truth.json (not a synthetic scan)")
+    doc = json.loads(gt_path.read_text())
+    if doc["mesh"]["kind"] != "fused":
+        raise ValueError(f"{src}: its mesh is {doc['mesh']['kind']!r}, not fused")
+    if out.exists():
+        raise ValueError(f"{out}: exists (refuse_scan writes a new folder)")
+    known = set(SynthOptions.__dataclass_fields__) - {"camera"}
+    opt = SynthOptions(**{k: v for k, v in doc["options"].items() if k in known})
+    opt.grid_yaw_deg = float(grid_yaw_deg)
+    scan = load_scan(src, check_images=False)
+    intr = scan.frames[0].intrinsics
+    poses = [f.c2w for f in scan.frames]
+    tmp = out.with_name(out.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    shutil.copytree(src, tmp)
+    scene_dir = tmp / "ground_truth" / "scene"
+    desc = json.loads((scene_dir / "scene.json").read_text())
+    clean = clean_surface(desc, scene_dir)
+    mesh = _fused_mesh(clean, poses, intr, opt, progress)
+    normals = np.asarray(mesh.vertex_normals)
+    truth = transfer_truth(clean, desc, scene_dir, np.asarray(mesh.vertices), normals)
+    mitsuba()
+    from reroom.synth.render import FrameRenderer, probe_radiance
+
+    renderer = FrameRenderer(mitsuba_scene_dict(desc, scene_dir), intr, opt.spp)
+    radiance, stderr = probe_radiance(
+        renderer.scene,
+        truth["surface_point"],
+        normals,
+        opt.vertex_spp,
+        seed=opt.seed,
+        offset=0.004,
+        progress=lambda d, n: progress("vertex radiance", d, n),
+    )
+    _write_vertex_truth(tmp / "ground_truth" / "vertices.ply", mesh, truth, radiance, stderr)
+    write_ply(tmp / "mesh.ply", trimesh.Trimesh(mesh.vertices, mesh.faces, process=False))
+    doc["options"]["grid_yaw_deg"] = opt.grid_yaw_deg
+    doc["mesh"].update(vertices=int(len(mesh.vertices)), faces=int(len(mesh.faces)))
+    doc["refused_from"] = str(src)
+    atomic_write_json(tmp / "ground_truth" / "ground_truth.json", doc)
+    tmp.rename(out)
     return out
