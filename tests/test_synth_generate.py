@@ -202,3 +202,19 @@ def test_refuse_scan_needs_a_fused_synthetic_scan(furnished: Path, tmp_path: Pat
         refuse_scan(furnished, tmp_path / "x", 30.0)
     with pytest.raises(ValueError, match="not a synthetic scan"):
         refuse_scan(tmp_path, tmp_path / "y", 30.0)
+
+
+def test_refuse_scan_leaves_no_scan_behind_when_it_fails(
+    box_fused: Path, tmp_path: Path, monkeypatch
+) -> None:
+    import reroom.synth.generate as generate
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("fusion failed")
+
+    monkeypatch.setattr(generate, "_fused_mesh", broken)
+    with pytest.raises(RuntimeError, match="fusion failed"):
+        generate.refuse_scan(box_fused, tmp_path / "out", 30.0)
+    # Only the folder marked partial is left; the output folder does not exist.
+    assert not (tmp_path / "out").exists()
+    assert (tmp_path / "out.partial").is_dir()

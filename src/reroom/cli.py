@@ -109,8 +109,12 @@ def synth(
         str, typer.Option(help="clean | corrupted | fused (TSDF from rendered depth).")
     ] = "clean",
     grid_yaw: Annotated[
-        float, typer.Option(help="fused: the voxel grid's turn about the vertical, degrees.")
-    ] = 17.0,
+        float | None,
+        typer.Option(
+            help="fused: the voxel grid's turn about the vertical, degrees "
+            "(default: synth.scanner.GRID_YAW_DEG, 17)."
+        ),
+    ] = None,
     noise: Annotated[bool, typer.Option(help="Shot and read noise in the frames.")] = True,
     response: Annotated[
         str, typer.Option(help="Camera response: gamma2.2 | srgb | linear.")
@@ -139,7 +143,7 @@ def synth(
             mesh=mesh,
             camera=CameraModel(response=response, noise=noise),
             save_hdr=save_hdr,
-            grid_yaw_deg=grid_yaw,
+            **({} if grid_yaw is None else {"grid_yaw_deg": grid_yaw}),
         )
         t = time.perf_counter()
         with _progress() as cb:

@@ -146,7 +146,7 @@ def generate_scan(
     from reroom.render import mitsuba
 
     mi = mitsuba()
-    from reroom.synth.render import FrameRenderer, probe_radiance
+    from reroom.synth.render import FrameRenderer
 
     intr = Intrinsics.from_fov(opt.width, opt.height, opt.fov_y_deg)
     poses = walk_and_look(spec.waypoints, opt.frames, rng)
@@ -200,15 +200,7 @@ def generate_scan(
     t = time.perf_counter()
     # Radiance of the true surface point each vertex stands for, seen along the vertex normal.
     probe_points = np.asarray(mesh.vertices) if opt.mesh == "clean" else truth["surface_point"]
-    radiance, stderr = probe_radiance(
-        renderer.scene,
-        probe_points,
-        normals,
-        opt.vertex_spp,
-        seed=opt.seed,
-        offset=0.004,
-        progress=lambda d, n: progress("vertex radiance", d, n),
-    )
+    radiance, stderr = _probe_vertices(renderer, probe_points, normals, opt, progress)
     timings["vertex_radiance"] = time.perf_counter() - t
 
     # --- write --------------------------------------------------------------------------------
@@ -280,6 +272,23 @@ def _fused_mesh(
     )
 
 
+def _probe_vertices(
+    renderer: Any, points: np.ndarray, normals: np.ndarray, opt: SynthOptions, progress: ProgressFn
+) -> tuple[np.ndarray, np.ndarray]:
+    """Path-traced radiance (and its standard error) leaving ``points`` along ``normals``."""
+    from reroom.synth.render import probe_radiance
+
+    return probe_radiance(
+        renderer.scene,
+        points,
+        normals,
+        opt.vertex_spp,
+        seed=opt.seed,
+        offset=0.004,
+        progress=lambda d, n: progress("vertex radiance", d, n),
+    )
+
+
 def _write_vertex_truth(
     path: Path, mesh: trimesh.Trimesh, truth: dict, radiance: np.ndarray, stderr: np.ndarray
 ) -> None:
@@ -344,18 +353,10 @@ def refuse_scan(
     normals = np.asarray(mesh.vertex_normals)
     truth = transfer_truth(clean, desc, scene_dir, np.asarray(mesh.vertices), normals)
     mitsuba()
-    from reroom.synth.render import FrameRenderer, probe_radiance
+    from reroom.synth.render import FrameRenderer
 
     renderer = FrameRenderer(mitsuba_scene_dict(desc, scene_dir), intr, opt.spp)
-    radiance, stderr = probe_radiance(
-        renderer.scene,
-        truth["surface_point"],
-        normals,
-        opt.vertex_spp,
-        seed=opt.seed,
-        offset=0.004,
-        progress=lambda d, n: progress("vertex radiance", d, n),
-    )
+    radiance, stderr = _probe_vertices(renderer, truth["surface_point"], normals, opt, progress)
     _write_vertex_truth(tmp / "ground_truth" / "vertices.ply", mesh, truth, radiance, stderr)
     write_ply(tmp / "mesh.ply", trimesh.Trimesh(mesh.vertices, mesh.faces, process=False))
     doc["options"]["grid_yaw_deg"] = opt.grid_yaw_deg

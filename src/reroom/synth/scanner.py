@@ -107,8 +107,8 @@ def fuse_depth_maps(
     A plane that falls on a layer of voxel centres fuses into a surface that
     flips between the layers from frame noise: twice the vertices, twice the
     normals' lean (a box room on the grid at 3 cm: 222k vertices, the floor's
-    normals 5.1 deg off against 2.6 off the grid), and it snaps to the layer
-    when within a few mm of it. The synthetic rooms' walls, floors and
+    normals 5.9 deg off against 2.6 off the grid; benchmarks/bench_fusion.py),
+    and it snaps to the layer when within a few mm of it. The synthetic rooms' walls, floors and
     ceilings sit at multiples of the voxel, where no real room's would.
     """
     from scipy.spatial.transform import Rotation
