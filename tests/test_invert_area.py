@@ -313,3 +313,40 @@ def test_hemisphere_rays_take_a_fused_panel_from_its_outline_and_its_rim_as_surf
     assert 1.25 < shared.area[:, 0].sum() / outlined.area[:, 0].sum() < 1.5
     lost = (outlined.indirect[:, 0].sum() - shared.indirect[:, 0].sum()) / light.sum()
     assert 0.25 < lost < 0.5
+
+
+def test_a_recessed_panels_fused_rim_is_left_out_of_its_outline():
+    """A recessed panel fused on a turned grid (docs/invert.md, "Session 50"): the rim's
+    slope takes the face's radiance past two of its edges, 7-16 mm above the face. The
+    outline is the hull of the vertices on the face's plane; a dome keeps every vertex."""
+    from reroom.invert.area_region import area_region, on_emitting_plane
+
+    rng = np.random.default_rng(5)
+    g = np.linspace(-0.3, 0.3, 21)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    face = np.column_stack([x, y, 2.68 + rng.normal(0.0, 0.0015, x.size)])
+    # The slope past the -x and +y edges: 1-4 cm out, rising towards the ceiling at 2.70.
+    out = np.repeat(np.linspace(0.01, 0.04, 4), 21)
+    along = np.tile(g, 4)
+    lift = 2.68 + np.clip(0.007 + 0.3 * (out - 0.01), 0.0, 0.018)
+    slope = np.concatenate(
+        [
+            np.column_stack([-0.3 - out, along, lift]),
+            np.column_stack([along, 0.3 + out, lift]),
+        ]
+    )
+    pts = np.concatenate([face, slope])
+    normal = [np.sin(np.radians(1.0)), 0.0, -np.cos(np.radians(1.0))]  # a degree off
+    keep = on_emitting_plane(pts, normal)
+    assert keep[: len(face)].all() and not keep[len(face) :].any()
+    assert area_region(pts[keep], normal).area == pytest.approx(0.36, rel=0.01)
+    assert area_region(pts, normal).area > 0.38  # the hull of them all: (0.64)^2
+    # Not flat: a dome's vertices have no plane to keep them on, so all are kept.
+    th, ph = rng.uniform(0.0, 1.2, 500), rng.uniform(0.0, 2 * np.pi, 500)
+    dome = np.column_stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), -np.cos(th)])
+    assert on_emitting_plane(0.2 * dome + [0.0, 0.0, 2.7], [0.0, 0.0, -1.0]).all()
+    # Too few points or not finite: everything kept.
+    assert on_emitting_plane(face[:2], normal).all()
+    bad = face.copy()
+    bad[0, 0] = np.nan
+    assert on_emitting_plane(bad, normal).all()

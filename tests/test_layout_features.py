@@ -391,6 +391,37 @@ def test_backing_shell_lies_a_gap_behind_the_room_and_has_no_window_panes():
     assert reveal_y.max() == pytest.approx(-gap) and reveal_y.min() == pytest.approx(-0.19)
 
 
+def test_backing_shell_keeps_every_face_at_an_uneven_gap():
+    """The gap is the scan's depth behind its planes plus a centimetre, to the float
+    (0.020591... on the issue's scan, session 50): the grown corners are then off the
+    micrometre the cut lines are rounded to. The shell must still have the window's head
+    and sill and the door's leaf; they were lost, and a new camera saw out through the
+    sill."""
+    poly = [[0, 0], [6, 0], [6, 4.5], [0, 4.5]]
+    openings = [
+        {"kind": "window", "wall": 0, "s0": 3.62, "s1": 5.2, "z0": 0.84, "z1": 2.16, "depth": 0.18},
+        {"kind": "door", "wall": 2, "s0": 0.7, "s1": 1.6, "z0": 0.0, "z1": 2.05, "depth": 0.02},
+    ]
+    room = {"polygon": poly, "floor_z": 0.0, "ceiling_z": 2.7, "openings": openings}
+    doc = {"rotation": np.eye(3).tolist(), "rooms": [room]}
+    portal = tuple(
+        np.array(x, float)
+        for x in ([4.405144, -0.183196, 1.499751], [0.79, -0.0016, 0], [0, 0, 0.66], [0, 1, 0])
+    )
+    even, even_lab = backing_shell(doc, 0.02, 0.05, portals=[portal])
+    for gap in (0.020591366540258185, 0.0213, 0.0317):
+        mesh, lab = backing_shell(doc, gap, 0.05, portals=[portal])
+        np.testing.assert_array_equal(np.bincount(lab), np.bincount(even_lab))
+        # The sill (facing up) and the head (facing down) of the window's reveals.
+        reveal = mesh.face_normals[lab == WINDOW]
+        assert (reveal[:, 2] > 0.99).sum() >= 1 and (reveal[:, 2] < -0.99).sum() >= 1
+        caster = RayCaster(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+        # Down past the window's inner edge onto its sill, from the room.
+        down = np.array([[0.0, -1.0, -1.0]]) / np.sqrt(2.0)
+        h = caster.intersect(np.array([[4.4, 0.1, 1.0]]), down)
+        assert h.hit[0] and lab[h.face[0]] == WINDOW
+
+
 def test_depth_behind_planes_counts_each_surface_out_of_its_own_plane():
     room = {
         "polygon": [[0, 0], [6, 0], [6, 3], [3, 3], [3, 5.5], [0, 5.5]],

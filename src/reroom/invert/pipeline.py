@@ -25,7 +25,7 @@ import scipy.sparse as sp
 
 from reroom.errors import ReroomError, ScanError
 from reroom.invert.area import DEFAULT_AREA_SAMPLES, area_light_transfer
-from reroom.invert.area_region import area_region
+from reroom.invert.area_region import area_region, on_emitting_plane
 from reroom.invert.basis import CubemapBasis, InclinationBasis, LineBasis
 from reroom.invert.direct import line_light_transfer, point_light_transfer
 from reroom.invert.fill import DEFAULT_FILL_ALBEDO, bounce_fill
@@ -198,8 +198,9 @@ class InvertOptions:
         and a trough around it from the photos (:mod:`reroom.invert.line_photos`)
         instead of dropping the shape prior.
     area_outline : bool
-        An area light is the part of the mesh around its vertices that lies inside their
-        convex outline on its plane (:mod:`reroom.invert.area_region`), in the direct
+        An area light is the part of the mesh around its vertices that lies inside the
+        convex outline of those on its emitting face's plane
+        (:mod:`reroom.invert.area_region`), in the direct
         transfer, in the hemisphere rays' classes (a rim triangle's hit is light inside
         the outline, surface outside), its power and its rendering; False: the
         barycentric share of its vertices, which on a fused scan reaches half a row of
@@ -976,6 +977,12 @@ def _window_photo_priors(
     return out
 
 
+def _light_outline(points: np.ndarray, normal: Any) -> Any:
+    """An area light's outline: the hull of its vertices on its emitting face's plane
+    (a recessed panel's fused rim left out, :func:`on_emitting_plane`)."""
+    return area_region(points[on_emitting_plane(points, normal)], normal)
+
+
 def _outline_geometry(region, vertex_area: float) -> dict[str, Any]:
     """An area light's geometry entries for its outline (:mod:`reroom.invert.area_region`):
     its corners in 3-D, its projected area (what its power is counted over) and the
@@ -1168,7 +1175,7 @@ def run_invert(
             )
     # Each area light's outline on its plane: the surface it emits from, in every transfer.
     regions = [
-        area_region(pts[area_of == k], light.geometry.get("normal", [0.0, 0.0, -1.0]))
+        _light_outline(pts[area_of == k], light.geometry.get("normal", [0.0, 0.0, -1.0]))
         if options.area_outline and np.any(area_of == k)
         else None
         for k, light in enumerate(areas)

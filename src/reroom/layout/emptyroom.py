@@ -70,7 +70,11 @@ class _Builder:
         return m, lab
 
 
-def _cuts(values: list[float], lo: float, hi: float, eps: float = 1e-6) -> np.ndarray:
+#: The precision of the shell's cut lines (metres): :func:`_cuts` rounds them to it.
+CUT_EPS = 1e-6
+
+
+def _cuts(values: list[float], lo: float, hi: float, eps: float = CUT_EPS) -> np.ndarray:
     v = np.unique(np.round(np.clip(np.asarray(values, float), lo, hi), 6))
     v = v[(v >= lo - eps) & (v <= hi + eps)]
     out = [v[0]]
@@ -171,7 +175,10 @@ def room_shell(
         coord = a[0] if abs(t[0]) > 0.5 else a[1]
         sign = t[0] if abs(t[0]) > 0.5 else t[1]
         s_cuts = np.sort((cuts_along - coord) * sign)
-        s_cuts = s_cuts[(s_cuts >= -1e-9) & (s_cuts <= length + 1e-9)]
+        # The cuts are rounded to the micrometre (_cuts) and the corners need not be
+        # (a shell grown by an uneven gap): compare to that precision, or a corner's
+        # strip or an opening's edge is lost (its head and sill with it).
+        s_cuts = s_cuts[(s_cuts >= -CUT_EPS) & (s_cuts <= length + CUT_EPS)]
         mine = [o for o in ops if o["wall"] == i]
 
         def solid(s: float, z: float, mine=mine) -> bool:
@@ -193,8 +200,8 @@ def room_shell(
         a3 = np.array([a[0], a[1], 0.0])
         for o in mine:
             d = o["depth"]
-            ss = s_cuts[(s_cuts >= o["s0"] - 1e-9) & (s_cuts <= o["s1"] + 1e-9)]
-            zz = zcut[(zcut >= o["z0"] - 1e-9) & (zcut <= o["z1"] + 1e-9)]
+            ss = s_cuts[(s_cuts >= o["s0"] - CUT_EPS) & (s_cuts <= o["s1"] + CUT_EPS)]
+            zz = zcut[(zcut >= o["z0"] - CUT_EPS) & (zcut <= o["z1"] + CUT_EPS)]
             dd = np.array([0.0, d])
             p0 = a3 + t3 * o["s0"]
             p1 = a3 + t3 * o["s1"]
@@ -205,7 +212,7 @@ def room_shell(
             bld.quad_grid(p1, out3, up, dd, zz, reveal)
             # Head faces down (u = t, v = out); sill faces up (u = out, v = t).
             bld.quad_grid(a3 + up * o["z1"], t3, out3, ss, dd, reveal)
-            sill_label = FLOOR if o["z0"] <= zf + 1e-9 and o["kind"] != "window" else reveal
+            sill_label = FLOOR if o["z0"] <= zf + CUT_EPS and o["kind"] != "window" else reveal
             bld.quad_grid(a3 + up * o["z0"], out3, t3, dd, ss, sill_label)
             # The far end faces the room (u = -t, v = up) at depth d.
             bld.quad_grid(a3 + out3 * d + t3 * o["s1"], -t3, up, np.sort(o["s1"] - ss), zz, back)
