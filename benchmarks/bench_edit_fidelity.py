@@ -59,6 +59,8 @@ Figures per edit and camera group (input frames, new cameras), averaged over the
 (``invert/window_<name>.exr``) taken from another run of the same scan, e.g. one solved
 with 8x8 cells (:func:`composite_window_maps`; docs/benchmarks.md, session 34).
 
+``DIR/pairs/EDIT_VIEW.npz`` holds each view's ``ours`` and ``truth`` in image units (for
+``benchmarks/bench_view_error.py``: where in a view the error is).
 ``DIR/strips/`` gets ``ours | truth | error`` PNGs per view, ``DIR/fidelity.json`` every
 figure (written after each edit). Truth renders are cached in ``DIR`` (keyed by edit,
 view, spp and seed), so a re-run after a model change only re-renders ours.
@@ -239,6 +241,14 @@ def _sampler_key(spp: int) -> tuple[str, ...]:
 
     name = default_sampler(spp)
     return () if name == "independent" else (name,)
+
+
+def save_pair(path: Path, ours: np.ndarray, truth: np.ndarray) -> None:
+    """Write one view's two images (image units, float32) to ``path`` (.npz), atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial.npz")
+    np.savez_compressed(tmp, ours=ours.astype(np.float32), truth=truth.astype(np.float32))
+    tmp.replace(path)
 
 
 def render_truth_cached(
@@ -760,6 +770,7 @@ def main() -> None:
                     row["light_share_ours"] = light_share(ours, o_ref, label)
             rows.append(row)
             write_rgb8(strips / f"{_file_name(edit)}_{v['view']}.png", comparison_strip(ours, tru))
+            save_pair(out / "pairs" / f"{_file_name(edit)}_{v['view']}.npz", ours, tru)
         for group in ("input", "new"):
             g = [r for r in rows if r["group"] == group]
             agg = {"edit": edit, "group": group, "views": [r["view"] for r in g]}
