@@ -21,8 +21,8 @@ containment test do the geometry.
 A recessed panel adds a second way past its edge. The fusion rounds the recess's step
 into a slope, and where the cameras look across that slope at the face below it, the
 slope's vertices take the face's radiance: on the same scan fused on a voxel grid turned
-17 degrees (session 49), bright vertices up to 4 cm past two of the panel's edges, 0.7-1.6
-cm above its face, made the hull 0.645 x 0.629 m (0.395 m^2, 10 % too much), and the panel
+17 degrees (session 49), bright vertices up to 4.1 cm past two of the panel's edges, 0.8-1.6
+cm off its face's plane, made the hull 0.628 x 0.643 m (0.395 m^2, 10 % too much), and the panel
 rendered 13 % too dim where a camera sees it directly. The emitting face is flat, so
 :func:`on_emitting_plane` keeps the light's vertices on its plane (within the plane's
 own scatter, at least 5 mm) for the outline; a light whose vertices do not mostly lie on
@@ -122,16 +122,12 @@ def area_region(points: ArrayLike, normal: ArrayLike) -> AreaRegion | None:
 
 
 def _plane_deviation(p: np.ndarray, n: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """Distances of ``p`` from the plane through ``p[keep]`` (normal refit by SVD)."""
+    """Distances of ``p`` from the plane through ``p[keep]`` (at least three points; the
+    normal refit by SVD where the fit stays near ``n``)."""
     q = p[keep]
-    if len(q) >= 3:
-        c = q.mean(axis=0)
-        fit = np.linalg.svd(q - c, full_matrices=False)[2][-1]
-        if np.linalg.norm(fit) > 0 and abs(fit @ n) > 0.9:  # a plane near the given one
-            n = fit
-        return np.abs((p - c) @ n)
-    d = p @ n
-    return np.abs(d - np.median(d))
+    c = q.mean(axis=0)
+    fit = np.linalg.svd(q - c, full_matrices=False)[2][-1]
+    return np.abs((p - c) @ (fit if abs(fit @ n) > 0.9 else n))
 
 
 def on_emitting_plane(
