@@ -386,9 +386,11 @@ def test_backing_shell_lies_a_gap_behind_the_room_and_has_no_window_panes():
     d, label = hit([3.0, 0.3, 1.45], [-2, -1, 0])  # meets the jamb at x = 2.03
     assert label == WINDOW and d == pytest.approx(np.hypot(0.97, 0.485), abs=1e-6)
     assert not np.isfinite(hit([2.7, 1.5, 1.45], [0, -1, 0])[0])  # no pane
-    # The reveals run from the shell's wall to the portal's plane.
+    # The reveals run from the room's wall plane (in front of the shell's wall) to the
+    # portal's plane.
     reveal_y = mesh.vertices[mesh.faces[lab == WINDOW]][..., 1]
-    assert reveal_y.max() == pytest.approx(-gap) and reveal_y.min() == pytest.approx(-0.19)
+    assert reveal_y.max() == pytest.approx(0.0, abs=1e-9)
+    assert reveal_y.min() == pytest.approx(-0.19)
 
 
 def test_backing_shell_keeps_every_face_at_an_uneven_gap():
@@ -420,6 +422,45 @@ def test_backing_shell_keeps_every_face_at_an_uneven_gap():
         down = np.array([[0.0, -1.0, -1.0]]) / np.sqrt(2.0)
         h = caster.intersect(np.array([[4.4, 0.1, 1.0]]), down)
         assert h.hit[0] and lab[h.face[0]] == WINDOW
+
+
+def test_backing_shell_reveals_start_at_the_rooms_wall_plane():
+    """A window's reveals in the shell reach from the room's wall plane to the portal.
+    They started at the shell's wall, ``gap`` behind it; the scan's reveal faces give way
+    to them, so a camera looking along the wall past the opening's edge met the shell's
+    wall in that gap, dark, where the true jamb is lit by the sky (the issue's new
+    camera ``new1``: 78 black pixels, session 51)."""
+    poly = [[0, 0], [6, 0], [6, 4.5], [0, 4.5]]
+    openings = [
+        {"kind": "window", "wall": 0, "s0": 3.62, "s1": 5.2, "z0": 0.84, "z1": 2.16, "depth": 0.18},
+        {"kind": "door", "wall": 2, "s0": 0.7, "s1": 1.6, "z0": 0.0, "z1": 2.05, "depth": 0.02},
+    ]
+    room = {"polygon": poly, "floor_z": 0.0, "ceiling_z": 2.7, "openings": openings}
+    doc = {"rotation": np.eye(3).tolist(), "rooms": [room]}
+    portal = tuple(
+        np.array(x, float)
+        for x in ([4.405, -0.183, 1.5], [0.79, 0.0, 0.0], [0.0, 0.0, 0.66], [0, 1, 0])
+    )
+    gap = 0.0206
+    mesh, lab = backing_shell(doc, gap, 0.05, portals=[portal])
+    reveal = mesh.triangles[lab == WINDOW]
+    assert reveal[..., 1].max() == pytest.approx(0.0, abs=1e-6)  # the room's wall plane
+    assert reveal[..., 1].min() == pytest.approx(-0.183, abs=1e-6)  # the portal's
+    walls = mesh.triangles[(lab == WALL) & (np.abs(mesh.face_normals[:, 1]) > 0.99)]
+    window_wall = walls[walls[..., 1].max(axis=1) < 1.0]
+    assert window_wall[..., 1].max() == pytest.approx(-gap, abs=1e-6)  # behind the room
+    # From a camera beside the window, along the wall past the opening's near edge: the
+    # jamb (x = 3.615), in front of the shell's wall.
+    caster = RayCaster(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    eye = np.array([[5.3, 0.68, 2.1]])
+    aim = np.array([[3.60, -0.01, 1.6]]) - eye
+    h = caster.intersect(eye, aim / np.linalg.norm(aim))
+    assert h.hit[0] and lab[h.face[0]] == WINDOW
+    hit = eye[0] + h.t[0] * aim[0] / np.linalg.norm(aim)
+    assert hit[0] == pytest.approx(3.615, abs=1e-6) and -gap < hit[1] < 0.0
+    # A window with no portal keeps its margin-wide opening and its reveals behind.
+    plain, plain_lab = backing_shell(doc, gap, 0.05)
+    assert plain.triangles[plain_lab == WINDOW][..., 1].max() == pytest.approx(-gap, abs=1e-6)
 
 
 def test_depth_behind_planes_counts_each_surface_out_of_its_own_plane():

@@ -98,7 +98,9 @@ def room_shell(
         ``(K, 2)`` counter-clockwise, axis-aligned polygon.
     openings:
         ``kind`` (door / window / passage), ``wall`` (edge index), ``s0, s1`` (arc length
-        from the edge's start), ``z0, z1`` (heights), ``depth`` (tunnel depth, metres).
+        from the edge's start), ``z0, z1`` (heights), ``depth`` (tunnel depth, metres),
+        optional ``front`` (metres, default 0): how far the tunnel's sides (jambs, head,
+        sill) reach in front of the wall, into the room.
 
     Returns
     -------
@@ -202,7 +204,7 @@ def room_shell(
             d = o["depth"]
             ss = s_cuts[(s_cuts >= o["s0"] - CUT_EPS) & (s_cuts <= o["s1"] + CUT_EPS)]
             zz = zcut[(zcut >= o["z0"] - CUT_EPS) & (zcut <= o["z1"] + CUT_EPS)]
-            dd = np.array([0.0, d])
+            dd = np.array([-max(0.0, float(o.get("front", 0.0))), d])
             p0 = a3 + t3 * o["s0"]
             p1 = a3 + t3 * o["s1"]
             back = {"door": DOOR, "window": WINDOW}.get(o["kind"], PORTAL)
@@ -347,7 +349,8 @@ def _grown_room(
 ) -> dict:
     """``room`` with its walls ``gap`` further out, its floor ``gap`` lower, its ceiling
     ``gap`` higher, each opening ``margin`` wider on every side (a window closed by one of
-    ``portals``: that rectangle exactly, its reveals ending at its plane), no baseboard."""
+    ``portals``: that rectangle exactly, its reveals reaching from the room's own wall
+    plane to the rectangle's), no baseboard."""
     poly = np.asarray(room["polygon"], float)
     k = len(poly)
     edge = np.roll(poly, -1, axis=0) - poly
@@ -374,7 +377,11 @@ def _grown_room(
             # The reveals meet the portal's edges and end at its plane, where the
             # renderer's window is: no gap between them for a camera to see out through.
             # Rounded as room_shell rounds its cut lines (to the micrometre), or a cut
-            # would miss the opening's edge and leave its tunnel out.
+            # would miss the opening's edge and leave its tunnel out. The reveals start
+            # at the layout's wall plane, not the shell's: the scan's own reveal faces
+            # give way to them, and a camera looking along the wall past the opening's
+            # edge met the shell's wall, dark in the gap behind the scan, where the true
+            # jamb is lit by the sky (docs/edit.md, "Holes in the scan").
             openings.append(
                 {
                     **o,
@@ -383,6 +390,7 @@ def _grown_room(
                     "z0": round(portal["z0"], 6),
                     "z1": round(portal["z1"], 6),
                     "depth": max(portal["depth"] - gap, 0.001),
+                    "front": gap,
                 }
             )
             continue
@@ -440,7 +448,9 @@ def backing_shell(
         (same wall, centre within 30 cm of the opening's span) takes that rectangle as
         its opening, without the margin, and its reveals end at the rectangle's plane:
         a point of a reveal next to the portal sees it as the true reveal sees the sky
-        beside its pane (with the margin's 5 cm gap it got half the light or less).
+        beside its pane (with the margin's 5 cm gap it got half the light or less). Its
+        reveals start at the room's wall plane, ``gap`` in front of the shell's wall, so
+        that they stand where the scan's reveals stood.
 
     Returns
     -------
