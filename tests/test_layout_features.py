@@ -393,19 +393,25 @@ def test_backing_shell_lies_a_gap_behind_the_room_and_has_no_window_panes():
     assert reveal_y.min() == pytest.approx(-0.19)
 
 
-def test_backing_shell_keeps_every_face_at_an_uneven_gap():
-    """The gap is the scan's depth behind its planes plus a centimetre, to the float
-    (0.020591... on the issue's scan, session 50): the grown corners are then off the
-    micrometre the cut lines are rounded to. The shell must still have the window's head
-    and sill and the door's leaf; they were lost, and a new camera saw out through the
-    sill."""
+def _issue_room_layout() -> dict:
+    """The issue's ``furnished`` room as its layout finds it: a window in wall 0 (y = 0,
+    the room at y > 0), a door in wall 2."""
     poly = [[0, 0], [6, 0], [6, 4.5], [0, 4.5]]
     openings = [
         {"kind": "window", "wall": 0, "s0": 3.62, "s1": 5.2, "z0": 0.84, "z1": 2.16, "depth": 0.18},
         {"kind": "door", "wall": 2, "s0": 0.7, "s1": 1.6, "z0": 0.0, "z1": 2.05, "depth": 0.02},
     ]
     room = {"polygon": poly, "floor_z": 0.0, "ceiling_z": 2.7, "openings": openings}
-    doc = {"rotation": np.eye(3).tolist(), "rooms": [room]}
+    return {"rotation": np.eye(3).tolist(), "rooms": [room]}
+
+
+def test_backing_shell_keeps_every_face_at_an_uneven_gap():
+    """The gap is the scan's depth behind its planes plus a centimetre, to the float
+    (0.020591... on the issue's scan, session 50): the grown corners are then off the
+    micrometre the cut lines are rounded to. The shell must still have the window's head
+    and sill and the door's leaf; they were lost, and a new camera saw out through the
+    sill."""
+    doc = _issue_room_layout()
     portal = tuple(
         np.array(x, float)
         for x in ([4.405144, -0.183196, 1.499751], [0.79, -0.0016, 0], [0, 0, 0.66], [0, 1, 0])
@@ -430,13 +436,7 @@ def test_backing_shell_reveals_start_at_the_rooms_wall_plane():
     to them, so a camera looking along the wall past the opening's edge met the shell's
     wall in that gap, dark, where the true jamb is lit by the sky (the issue's new
     camera ``new1``: 78 black pixels, session 51)."""
-    poly = [[0, 0], [6, 0], [6, 4.5], [0, 4.5]]
-    openings = [
-        {"kind": "window", "wall": 0, "s0": 3.62, "s1": 5.2, "z0": 0.84, "z1": 2.16, "depth": 0.18},
-        {"kind": "door", "wall": 2, "s0": 0.7, "s1": 1.6, "z0": 0.0, "z1": 2.05, "depth": 0.02},
-    ]
-    room = {"polygon": poly, "floor_z": 0.0, "ceiling_z": 2.7, "openings": openings}
-    doc = {"rotation": np.eye(3).tolist(), "rooms": [room]}
+    doc = _issue_room_layout()
     portal = tuple(
         np.array(x, float)
         for x in ([4.405, -0.183, 1.5], [0.79, 0.0, 0.0], [0.0, 0.0, 0.66], [0, 1, 0])
