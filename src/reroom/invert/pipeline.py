@@ -200,9 +200,9 @@ class InvertOptions:
     area_outline : bool
         An area light is the part of the mesh around its vertices that lies inside the
         convex outline of those on its emitting face's plane
-        (:mod:`reroom.invert.area_region`), in the direct
-        transfer, in the hemisphere rays' classes (a rim triangle's hit is light inside
-        the outline, surface outside), its power and its rendering; False: the
+        (:mod:`reroom.invert.area_region`), in the direct transfer, in the hemisphere
+        rays' classes (a rim triangle's hit is light inside the outline, surface
+        outside), its power and its rendering; False: the
         barycentric share of its vertices, which on a fused scan reaches half a row of
         triangles past the row of vertices that is already past the panel's edge
         (docs/invert.md, "An area light's outline").

@@ -70,12 +70,15 @@ class _Builder:
         return m, lab
 
 
-#: The precision of the shell's cut lines (metres): :func:`_cuts` rounds them to it.
-CUT_EPS = 1e-6
+#: Decimals (of a metre) the shell's cut lines and the grown room's openings are rounded
+#: to: every cut and every edge it must meet round alike.
+CUT_DECIMALS = 6
+#: The precision of the shell's cut lines (metres), what :data:`CUT_DECIMALS` rounds to.
+CUT_EPS = 10.0**-CUT_DECIMALS
 
 
 def _cuts(values: list[float], lo: float, hi: float, eps: float = CUT_EPS) -> np.ndarray:
-    v = np.unique(np.round(np.clip(np.asarray(values, float), lo, hi), 6))
+    v = np.unique(np.round(np.clip(np.asarray(values, float), lo, hi), CUT_DECIMALS))
     v = v[(v >= lo - eps) & (v <= hi + eps)]
     out = [v[0]]
     for x in v[1:]:
@@ -385,10 +388,10 @@ def _grown_room(
             openings.append(
                 {
                     **o,
-                    "s0": round(portal["s0"] - ds, 6),
-                    "s1": round(portal["s1"] - ds, 6),
-                    "z0": round(portal["z0"], 6),
-                    "z1": round(portal["z1"], 6),
+                    "s0": round(portal["s0"] - ds, CUT_DECIMALS),
+                    "s1": round(portal["s1"] - ds, CUT_DECIMALS),
+                    "z0": round(portal["z0"], CUT_DECIMALS),
+                    "z1": round(portal["z1"], CUT_DECIMALS),
                     "depth": max(portal["depth"] - gap, 0.001),
                     "front": gap,
                 }
@@ -397,10 +400,10 @@ def _grown_room(
         openings.append(
             {
                 **o,
-                "s0": round(float(o["s0"]) - ds - margin, 6),
-                "s1": round(float(o["s1"]) - ds + margin, 6),
-                "z0": round(float(o["z0"]) - margin, 6),
-                "z1": round(float(o["z1"]) + margin, 6),
+                "s0": round(float(o["s0"]) - ds - margin, CUT_DECIMALS),
+                "s1": round(float(o["s1"]) - ds + margin, CUT_DECIMALS),
+                "z0": round(float(o["z0"]) - margin, CUT_DECIMALS),
+                "z1": round(float(o["z1"]) + margin, CUT_DECIMALS),
                 "depth": depth,
             }
         )
