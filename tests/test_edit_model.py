@@ -384,6 +384,63 @@ def test_an_outlined_area_light_renders_its_outline(tmp_path: Path) -> None:
     assert read_ply(old["light_00"]["filename"]).area > 1.2
 
 
+def test_an_outlined_panel_is_drawn_on_its_face_not_on_its_bent_rim(tmp_path: Path) -> None:
+    """A fused scan bends a panel's edge towards the ceiling: the light's outer ring of
+    vertices lies 5 mm above its face (and the plane through all of them tilts). The
+    emitter is drawn on the face's plane, fitted to the core of its vertices, not on the
+    scan's faces, and keeps the outline's shape."""
+    from reroom.edit.model import OUTLINE_LIFT
+    from reroom.invert.area_region import area_region, emitting_face_plane
+    from reroom.io.mesh import read_ply
+
+    corners = [[1.5, 1.0, 2.5], [2.5, 1.0, 2.5], [2.5, 2.0, 2.5], [1.5, 2.0, 2.5]]
+    scan, on, f, doc, geo = _fused_panel(tmp_path, corners)
+    v, _ = box_room((4.0, 3.0, 2.5), spacing=0.25, obstacle=False)
+    ring = on & (np.maximum(np.abs(v[:, 0] - 2.0), np.abs(v[:, 1] - 1.5)) > 0.5 - 1e-9)
+    bent = ring & (v[:, 1] > 1.5)  # one side more than the other: the hull's plane tilts
+    v = v.copy()
+    v[ring, 2] += 0.005
+    v[bent, 2] += 0.005
+    write_ply(
+        scan / "invert" / "albedo.ply",
+        trimesh.Trimesh(v, f, process=False),
+        {"albedo": np.full((len(v), 3), ALBEDO, np.float32)},
+    )
+    region = area_region(v[on], [0.0, 0.0, -1.0])
+    face = emitting_face_plane(v[on], region)
+    assert face is not None
+    origin, normal = face
+    np.testing.assert_allclose(normal, [0.0, 0.0, -1.0], atol=1e-9)
+    assert origin[2] == pytest.approx(2.5, abs=1e-9)
+    emitter = read_ply(model_scene(scan)["light_00"]["filename"])
+    np.testing.assert_allclose(emitter.vertices[:, 2], 2.5 - OUTLINE_LIFT, atol=1e-9)
+    assert emitter.area == pytest.approx(1.0, rel=1e-9)
+    np.testing.assert_allclose(emitter.bounds[:, :2], [[1.5, 1.0], [2.5, 2.0]], atol=1e-9)
+
+
+def test_emitting_face_plane_is_none_for_few_or_curved_points() -> None:
+    """Fewer than three points inside the outline, or a core that is not flat (a steep
+    ridge, a dome): no plane, and the light keeps the scan's faces."""
+    from reroom.invert.area_region import area_region, emitting_face_plane
+
+    square = np.array([[0, 0, 2.0], [1, 0, 2.0], [1, 1, 2.0], [0, 1, 2.0]], float)
+    region = area_region(square, [0.0, 0.0, -1.0])
+    assert emitting_face_plane(square[:2] + [0.5, 0.5, 0.0], region) is None
+    g = np.linspace(0.1, 0.9, 9)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    ridge = np.stack([x, y, 2.0 + x], axis=1)  # its own fit tilts 45 degrees
+    dome = np.stack([x, y, 2.0 + 0.3 * ((x - 0.5) ** 2 + (y - 0.5) ** 2)], axis=1)
+    flat = np.stack([x, y, np.full_like(x, 2.0)], axis=1)
+    assert emitting_face_plane(ridge, region) is None
+    assert emitting_face_plane(dome, region) is None
+    face = emitting_face_plane(flat, region)
+    assert face is not None
+    origin, normal = face
+    np.testing.assert_allclose(normal, [0.0, 0.0, -1.0], atol=1e-12)
+    assert origin[2] == pytest.approx(2.0)
+
+
 def test_a_line_light_with_a_radius_glows_on_its_cylinder(tmp_path: Path) -> None:
     """A fused scan's tube is a block twice its width: the glow is drawn on the cylinder
     of the line's fitted radius, where the scan saw it glow; without a radius, or where the

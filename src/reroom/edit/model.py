@@ -390,12 +390,19 @@ def _area_emitter_shape(
     with at least two light corners, as before. With one (``reroom invert``'s
     ``area_outline``) it is the part of every face touching a light vertex inside the
     outline, as the transfer integrated it. Where some of those faces reach past the
-    light's vertices (a fused scan's rim) it is lifted ``OUTLINE_LIFT`` towards the room,
+    light's vertices (a fused scan's rim) it is put on its emitting face's plane where
+    the light is flat (:func:`reroom.invert.area_region.emitting_face_plane`: the scan
+    bends the face's edge towards the ceiling), lifted ``OUTLINE_LIFT`` towards the room,
     and the faces with two light corners that the room leaves out are drawn as surface
     behind it (with the room's albedo); a light that is a piece of its own (a clean
     scan's panel) stays in place.
     """
-    from reroom.invert.area_region import area_region, clip_to_region
+    from reroom.invert.area_region import (
+        area_region,
+        clip_to_region,
+        emitting_face_plane,
+        onto_plane,
+    )
 
     outline = geo.get("outline")
     region = None
@@ -409,6 +416,11 @@ def _area_emitter_shape(
     if not partial.any():
         # A light that is a piece of its own (a clean scan's panel): its faces, in place.
         return trimesh.Trimesh(pv, pf, process=False), None
+    # The emitting face is flat, and the scan's faces at its edge bend towards the
+    # surface around it: the pieces go onto the face's own plane.
+    face = emitting_face_plane(vertices[members], region)
+    if face is not None:
+        pv = onto_plane(pv, *face, region.normal)
     emitter = trimesh.Trimesh(pv + OUTLINE_LIFT * region.normal, pf, process=False)
     rim_faces = faces[sel & partial]
     if len(rim_faces) == 0:
