@@ -17,7 +17,14 @@ had to be dropped. The photos see both:
   returns it.
 * **The radius**, from the stripe's width: the tube saturates a pixel as soon as it
   covers a small part of it, so the run of saturated samples along the stripe's
-  normal (bilinear between pixel centres) spans about the tube's projected width.
+  normal (bilinear between pixel centres) spans about the tube's projected width. The
+  rays through the run's two ends graze the tube, so each passes the axis at the
+  tube's radius: the radius is the median of their distances from the fitted axis,
+  over the views that see the tube whole (within ``stripe_max_alpha``). Converted
+  with the depth over the focal length instead, a width off the image's centre reads
+  up to ``1 / cos`` of its angle too wide: on the issue's 300-frame 320x180 fused
+  `furnished` the radius came out 17.5 mm that way, 16.3 mm from the rays (the truth
+  16.0), and a tube drawn from it glowed 8 % too dim (docs/invert.md, "Session 52").
 * **The cut-off.** Seen from further to the side, baffles hide the tube: a frame that
   sees the tube's place (nothing else in the way) shows the stripe or does not. Across
   the tube the angle where the stripe goes out is where the baffle's edge meets the line
@@ -96,7 +103,10 @@ class PhotoTube:
     residual_m:
         Robust spread (1.4826 MAD) of the stripe rays' distances to the fitted axis.
     radius:
-        Median half-width of the saturated stripes (metres), None without stripes.
+        The tube's radius (metres): the median distance from the fitted axis of the
+        rays through the ends of the saturated stripes seen within ``stripe_max_alpha``;
+        where there are none, the median half-width of every stripe (depth over focal
+        length); None without stripes.
     sightings:
         Every frame that sees the tube's place.
     cutoff_deg:
@@ -184,6 +194,25 @@ def cutoff_angle(angles: ArrayLike, bright: ArrayLike, min_dark: int = 2) -> flo
     return None if split is None else float(split)
 
 
+#: Stripes seen whole (within ``stripe_max_alpha``) needed for the radius from their
+#: edge rays; with fewer, the median half-width of every stripe.
+MIN_EDGE_RAYS = 5
+
+
+def _line_distance(o: np.ndarray, d: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Distance of each line ``o + s d`` (rows) from the line through ``p0`` and ``p1``."""
+    t = (p1 - p0) / np.linalg.norm(p1 - p0)
+    n = np.cross(np.asarray(d, float), t)
+    length = np.linalg.norm(n, axis=1)
+    gap = np.abs(np.sum((np.asarray(o, float) - p0) * n, axis=1)) / np.maximum(length, 1e-12)
+    # A ray along the axis: its distance from the axis line, not from a point on it.
+    along = length < 1e-9
+    if along.any():
+        q = np.asarray(o, float)[along] - p0
+        gap[along] = np.linalg.norm(q - np.outer(q @ t, t), axis=1)
+    return gap
+
+
 def _stripe_centre(
     img: np.ndarray, uv: np.ndarray, normal: np.ndarray, level: float, half: float = 6.0
 ) -> tuple[float, float] | None:
@@ -253,6 +282,7 @@ def observe_tube(
     mid = pts.mean(axis=0)
     sightings: list[TubeSighting] = []
     rows, rhs, widths, stripe_frames, where = [], [], [], set(), []
+    edge_rays: list[tuple[np.ndarray, np.ndarray]] = []
     for fr in frames:
         c = np.asarray(fr.center, float)
         w = c - mid
@@ -295,6 +325,8 @@ def observe_tube(
                 frame_widths.append(run * depth[k] / f_px)
                 if abs(alpha) > stripe_max_alpha:
                     continue
+                ends_uv = uv[k] + np.outer([off - 0.5 * run, off + 0.5 * run], normal)
+                edge_rays.append(fr.pixel_rays(ends_uv))
                 o, d = fr.pixel_rays((uv[k] + off * normal)[None, :])
                 # Projected along the axis, the axis is a point and the ray a line
                 # through it: the ray meets the axis iff its projection passes there.
@@ -339,9 +371,13 @@ def observe_tube(
         m = sign * angles > 0
         cut.append(cutoff_angle(sign * angles[m], bright[m]) if m.any() else None)
     # The fit gives the axis at t = 0 and t = 1 of the sampled span, i.e. at p0 and p1.
+    f0, f1 = a0 + ends[0] * side + ends[1] * u, a1 + ends[2] * side + ends[3] * u
+    if len(edge_rays) >= MIN_EDGE_RAYS:
+        grazing = [_line_distance(o, d, f0, f1).mean() for o, d in edge_rays]
+        radius = float(np.median(grazing))
     return PhotoTube(
-        a0 + ends[0] * side + ends[1] * u,
-        a1 + ends[2] * side + ends[3] * u,
+        f0,
+        f1,
         (float(0.5 * (ends[0] + ends[2])), float(0.5 * (ends[1] + ends[3]))),
         len(rows),
         len(stripe_frames),
