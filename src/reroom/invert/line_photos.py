@@ -325,8 +325,6 @@ def observe_tube(
                 frame_widths.append(run * depth[k] / f_px)
                 if abs(alpha) > stripe_max_alpha:
                     continue
-                ends_uv = uv[k] + np.outer([off - 0.5 * run, off + 0.5 * run], normal)
-                edge_rays.append(fr.pixel_rays(ends_uv))
                 o, d = fr.pixel_rays((uv[k] + off * normal)[None, :])
                 # Projected along the axis, the axis is a point and the ray a line
                 # through it: the ray meets the axis iff its projection passes there.
@@ -336,6 +334,9 @@ def observe_tube(
                 n = np.hypot(ds, du)
                 if n < 0.05:  # a ray along the axis says nothing about where it lies
                     continue
+                # The rays through the run's ends graze the tube: the radius, below.
+                ends_uv = uv[k] + np.outer([off - 0.5 * run, off + 0.5 * run], normal)
+                edge_rays.append(fr.pixel_rays(ends_uv))
                 ds, du = ds / n, du / n
                 # The axis at t[k], (1 - t) (s0, v0) + t (s1, v1), lies on the ray's line.
                 tk = t[k]
